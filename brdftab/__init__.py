@@ -1,0 +1,56 @@
+"""brdftab: tabulate, convert and validate BRDFs.
+
+A BRDF is anything that evaluates ``f(wi, wo, wavelengths)`` vectorized, in sr⁻¹, with unit
+directions pointing away from the surface (normal +z). Analytic models
+(:mod:`brdftab.models`) and tables read from files (:class:`brdftab.table.Table`) both do.
+
+Script API::
+
+    import brdftab
+    brdf = brdftab.from_spec("specs/ggx-gold.toml")        # the spec's model
+    table = brdftab.open("ggx-gold.nc")                     # a table from any supported file
+    ggx = brdftab.models.create("microfacet", alpha=0.3)    # a model by name
+    f = ggx.eval(wi, wo)                                    # [..., n_channels] in 1/sr
+    brdftab.save(ggx, "ggx.nc", grid=brdftab.grids.merl_grid())
+"""
+
+from __future__ import annotations
+
+from . import geometry, grids, models
+from ._version import __version__
+from .brdf import BRDF
+from .errors import BrdftabError
+from .table import Table, tabulate
+
+__all__ = ["__version__", "BRDF", "BrdftabError", "Table", "from_spec", "geometry", "grids", "load_spec", "models",
+           "open", "save", "tabulate"]
+
+
+def load_spec(path):
+    """Parse and validate a spec file (TOML); returns a :class:`brdftab.spec.Spec`."""
+    from .spec import load_spec as _load
+
+    return _load(path)
+
+
+def from_spec(path) -> BRDF:
+    """The BRDF a spec file describes (its ``[model]``)."""
+    return load_spec(path).model
+
+
+def open(path) -> Table:  # noqa: A001 - mirrors xarray.open_dataset / io.open naming
+    """Read a table from any supported file (format from magic bytes, then extension)."""
+    from . import formats
+
+    return formats.read(path)
+
+
+def save(brdf: BRDF, path, grid=None, *, format=None, overwrite=True, **options):
+    """Write ``brdf`` to ``path`` (format from ``format`` or the extension), atomically.
+
+    A table is written as it is when ``grid`` is None or equals its own grid; otherwise the
+    BRDF is tabulated (resampled) on ``grid`` first.
+    """
+    from . import formats
+
+    return formats.write(brdf, path, grid=grid, format=format, overwrite=overwrite, **options)

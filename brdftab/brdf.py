@@ -1,0 +1,119 @@
+"""The BRDF protocol: anything that evaluates f(wi, wo, λ) vectorized, in sr⁻¹.
+
+``brdf.eval(wi, wo, wavelengths=None)`` takes unit direction vectors ``wi``, ``wo`` of any
+broadcastable leading shape (trailing axis 3; pointing away from the surface; normal +z) and
+returns ``ndarray[..., n_channels]``. The result is 0 wherever either direction is at or below
+the horizon. Analytic models (:mod:`brdftab.models`) and tables (:class:`brdftab.table.Table`)
+are both :class:`BRDF` objects.
+
+Metadata every BRDF carries:
+
+* ``name`` and ``parameters`` (JSON-able; angles in radians) — provenance of tables;
+* ``channels`` (names) or, for spectral BRDFs, ``wavelengths`` [nm] (see
+  :mod:`brdftab.channels`);
+* ``isotropic`` (invariant under rotation about the normal) and ``reciprocal``
+  (f(wi, wo) = f(wo, wi)) as *declared* by the model; :mod:`brdftab.validate` checks them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .channels import Layout
+from .geometry import as_directions
+from .params import parse_params
+
+__all__ = ["BRDF", "Model"]
+
+
+class BRDF:
+    """Base class of everything that evaluates a BRDF. Subclasses implement :meth:`_eval`."""
+
+    name: str = "brdf"
+    layout: Layout = Layout()
+    isotropic: bool = True
+    reciprocal: bool = True
+
+    @property
+    def channels(self):
+        """Channel names, or None for a spectral BRDF."""
+        return self.layout.channels
+
+    @property
+    def wavelengths(self):
+        """Default wavelengths [nm] of a spectral BRDF (None otherwise)."""
+        return self.layout.wavelengths
+
+    @property
+    def spectral(self) -> bool:
+        return self.layout.spectral
+
+    @property
+    def parameters(self) -> dict:
+        return {}
+
+    def eval(self, wi, wo, wavelengths=None) -> np.ndarray:
+        """f(wi, wo) in sr⁻¹, shape ``broadcast(wi, wo).shape[:-1] + (n_channels,)``.
+
+        ``wavelengths`` [nm] selects spectral evaluation (required for spectral BRDFs unless
+        they carry default wavelengths; allowed for grey BRDFs, which broadcast).
+        """
+        wi, wo = as_directions(wi, wo)
+        lam = self.layout.resolve(wavelengths)
+        n = self.layout.n_out(lam)
+        above = (wi[..., 2] > 0) & (wo[..., 2] > 0)
+        out = np.zeros(wi.shape[:-1] + (n,))
+        if above.all():
+            out[...] = self._eval(wi.reshape(-1, 3), wo.reshape(-1, 3), lam, n).reshape(out.shape)
+        elif above.any():
+            out[above] = self._eval(wi[above], wo[above], lam, n)
+        return out
+
+    def _eval(self, wi, wo, lam, n) -> np.ndarray:
+        """Evaluate at ``(M, 3)`` above-horizon pairs; return ``(M, n)``.
+
+        ``lam`` is None (channel mode) or the wavelengths [nm] (length n).
+        """
+        raise NotImplementedError
+
+    def describe(self) -> str:
+        return f"{self.name}({', '.join(f'{k}={v!r}' for k, v in self.parameters.items())})"
+
+    def __repr__(self):
+        return self.describe()
+
+
+class Model(BRDF):
+    """An analytic model with declared parameters (:class:`~brdftab.params.Param`).
+
+    Subclasses set ``name``, ``summary``, ``reference`` and ``params`` and implement
+    :meth:`_setup` (called with the validated values) and :meth:`_eval`.
+    """
+
+    summary: str = ""
+    reference: str = ""
+    params: tuple = ()
+
+    def __init__(self, **params):
+        values = parse_params(self.params, params, self.name)
+        self._values = values
+        self._setup(**values)
+
+    def _setup(self, **values):
+        raise NotImplementedError
+
+    @property
+    def parameters(self) -> dict:
+        out = {}
+        for p in self.params:
+            v = self._values[p.name]
+            if v is None:
+                continue
+            if hasattr(v, "to_json"):
+                v = v.to_json()
+            elif isinstance(v, BRDF):
+                v = {"model": v.name, "parameters": v.parameters}
+            elif isinstance(v, tuple) and v and isinstance(v[0], BRDF):
+                v = [{"model": t.name, "parameters": t.parameters} for t in v]
+            out[p.name] = v
+        return out

@@ -1,0 +1,39 @@
+"""Exceptions brdftab raises for bad input.
+
+Every error a user can cause by what they pass (a spec file, a table file, a CLI option,
+a parameter value) is a :class:`BrdftabError`. The CLI prints its message as one line on
+stderr and exits with code 2; the Python API lets it propagate.
+"""
+
+from __future__ import annotations
+
+
+class BrdftabError(Exception):
+    """Bad input: a user-facing message, one line, no traceback needed."""
+
+    exit_code = 2
+
+
+class ParameterError(BrdftabError, ValueError):
+    """A model parameter is missing, unknown, mistyped or out of range.
+
+    ``key`` names the parameter (a dotted path once the spec loader adds context) and
+    ``expected`` says what would have been accepted.
+    """
+
+    def __init__(self, key: str, message: str):
+        self.key = key
+        self.detail = message
+        super().__init__(f"{key}: {message}" if key else message)
+
+
+class SpecError(BrdftabError):
+    """A spec file is unreadable or does not follow the schema."""
+
+
+class FormatError(BrdftabError):
+    """A table file cannot be read or written in the requested format."""
+
+
+class ValidationError(BrdftabError):
+    """A table failed a check that export requires."""

@@ -1,0 +1,191 @@
+"""Directions, frames, rotations and Rusinkiewicz half/difference coordinates.
+
+Conventions (used everywhere in brdftab):
+
+* Directions are unit vectors that point **away** from the surface, in a local frame whose
+  normal is +z. A direction is below the horizon when its z component is <= 0.
+* ``sph(θ, φ) = (sinθ cosφ, sinθ sinφ, cosθ)``; θ is the polar angle from +z, φ the
+  azimuth measured counter-clockwise from +x. All angles are in radians.
+* Azimuths returned by this module lie in (−π, π] (``atan2``).
+* Rusinkiewicz coordinates follow the MERL reference code (``BRDFRead.cpp``): the half vector
+  ``h = normalize(wi + wo)`` has angles (θh, φh); the difference vector is
+  ``d = Ry(−θh) · Rz(−φh) · wi`` with angles (θd, φd). The inverse is
+  ``wi = Rz(φh) · Ry(θh) · d`` and ``wo = 2 (wi·h) h − wi``.
+* At θh = 0 (exact mirror configuration) φh is undefined. brdftab defines φh = 0 there
+  (``sin θh < THETA_H_ZERO``), so φd equals the azimuth of wi. Round trips through
+  ``hd_to_io`` are exact for φh = 0 at θh = 0; for other φh the pair is the same but the
+  reported (φh, φd) become (0, φh + φd).
+
+Reference: S. M. Rusinkiewicz, "A New Change of Variables for Efficient BRDF Representation",
+Eurographics Workshop on Rendering (1998); W. Matusik et al., MERL BRDF database
+``BRDFRead.cpp`` (2003).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "THETA_H_ZERO",
+    "sph_to_vec",
+    "vec_to_sph",
+    "normalize",
+    "rot_x",
+    "rot_y",
+    "rot_z",
+    "rotation_matrix",
+    "half_vector",
+    "reflect",
+    "io_to_hd",
+    "hd_to_io",
+    "as_directions",
+]
+
+#: Below this value of sin θh the half vector is taken to be the normal and φh := 0.
+THETA_H_ZERO = 1e-12
+
+
+def sph_to_vec(theta, phi):
+    """Unit vector(s) ``(sinθ cosφ, sinθ sinφ, cosθ)`` from polar angle θ and azimuth φ [rad].
+
+    Broadcasts over any shape; the result has a trailing axis of length 3.
+    """
+    theta, phi = np.broadcast_arrays(np.asarray(theta, float), np.asarray(phi, float))
+    st = np.sin(theta)
+    return np.stack([st * np.cos(phi), st * np.sin(phi), np.cos(theta)], axis=-1)
+
+
+def vec_to_sph(v):
+    """Polar angle θ ∈ [0, π] and azimuth φ ∈ (−π, π] [rad] of vectors ``v[..., 3]``.
+
+    θ uses ``atan2(hypot(x, y), z)``, which keeps full precision near the pole (``acos``
+    does not). Vectors need not be normalized.
+    """
+    v = np.asarray(v, float)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.arctan2(np.hypot(x, y), z), np.arctan2(y, x)
+
+
+def normalize(v):
+    """``v / |v|`` along the last axis."""
+    v = np.asarray(v, float)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _rot(v, angle, i, j):
+    # Right-handed rotation by `angle` in the (i, j) coordinate plane.
+    v = np.asarray(v, float)
+    c, s = np.cos(angle), np.sin(angle)
+    out = np.array(v, copy=True) if np.ndim(angle) == 0 else np.broadcast_to(
+        v, np.broadcast_shapes(v.shape, np.shape(angle) + (3,))
+    ).copy()
+    vi, vj = v[..., i], v[..., j]
+    out[..., i] = c * vi - s * vj
+    out[..., j] = s * vi + c * vj
+    return out
+
+
+def rot_x(v, angle):
+    """Rotate vectors ``v[..., 3]`` right-handedly about +x by ``angle`` [rad]."""
+    return _rot(v, angle, 1, 2)
+
+
+def rot_y(v, angle):
+    """Rotate vectors ``v[..., 3]`` right-handedly about +y by ``angle`` [rad]."""
+    return _rot(v, angle, 2, 0)
+
+
+def rot_z(v, angle):
+    """Rotate vectors ``v[..., 3]`` right-handedly about +z by ``angle`` [rad]."""
+    return _rot(v, angle, 0, 1)
+
+
+def rotation_matrix(axis, angle):
+    """3×3 right-handed rotation matrix about unit ``axis`` by ``angle`` [rad] (Rodrigues)."""
+    a = normalize(np.asarray(axis, float))
+    k = np.array([[0, -a[2], a[1]], [a[2], 0, -a[0]], [-a[1], a[0], 0]])
+    return np.eye(3) + np.sin(angle) * k + (1 - np.cos(angle)) * (k @ k)
+
+
+def half_vector(wi, wo):
+    """Unit half vector ``normalize(wi + wo)``."""
+    return normalize(np.asarray(wi, float) + np.asarray(wo, float))
+
+
+def reflect(w, n):
+    """Mirror direction of ``w`` about unit normal(s) ``n``: ``2 (w·n) n − w``."""
+    w = np.asarray(w, float)
+    n = np.asarray(n, float)
+    return 2.0 * np.sum(w * n, axis=-1, keepdims=True) * n - w
+
+
+def as_directions(*dirs):
+    """Broadcast direction arrays ``[..., 3]`` against each other as float64."""
+    arrs = [np.asarray(d, dtype=float) for d in dirs]
+    for a in arrs:
+        if a.ndim == 0 or a.shape[-1] != 3:
+            raise ValueError(f"directions must have a trailing axis of length 3, got shape {a.shape}")
+    return np.broadcast_arrays(*arrs)
+
+
+def io_to_hd(wi, wo):
+    """Rusinkiewicz coordinates of direction pairs.
+
+    Parameters
+    ----------
+    wi, wo : array_like [..., 3]
+        Unit vectors pointing away from the surface (any leading shape, broadcast).
+
+    Returns
+    -------
+    theta_h, phi_h, theta_d, phi_d : ndarray [rad]
+        θh ∈ [0, π], φh ∈ (−π, π], θd ∈ [0, π], φd ∈ (−π, π]. At θh = 0 φh is defined as 0.
+    """
+    wi, wo = as_directions(wi, wo)
+    h = wi + wo
+    hx, hy, hz = h[..., 0], h[..., 1], h[..., 2]
+    rxy = np.hypot(hx, hy)
+    norm = np.hypot(rxy, hz)
+    theta_h = np.arctan2(rxy, hz)
+    pole = rxy <= THETA_H_ZERO * norm
+    phi_h = np.where(pole, 0.0, np.arctan2(hy, hx))
+    # d = Ry(-θh) Rz(-φh) wi, written out with the cosines of the angles.
+    ch = hz / norm
+    sh = rxy / norm
+    safe = np.where(pole, 1.0, rxy)
+    cp = np.where(pole, 1.0, hx / safe)
+    sp = np.where(pole, 0.0, hy / safe)
+    x, y, z = wi[..., 0], wi[..., 1], wi[..., 2]
+    x1 = cp * x + sp * y
+    y1 = -sp * x + cp * y
+    dx = ch * x1 - sh * z
+    dz = sh * x1 + ch * z
+    theta_d = np.arctan2(np.hypot(dx, y1), dz)
+    phi_d = np.arctan2(y1, dx)
+    return theta_h, phi_h, theta_d, phi_d
+
+
+def hd_to_io(theta_h, phi_h, theta_d, phi_d):
+    """Direction pairs from Rusinkiewicz coordinates (inverse of :func:`io_to_hd`).
+
+    All arguments in radians, broadcast against each other. Returns ``(wi, wo)`` with a
+    trailing axis of length 3. Pairs may lie below the horizon (z <= 0): the caller decides.
+    """
+    th, ph, td, pd = np.broadcast_arrays(*(np.asarray(a, float) for a in (theta_h, phi_h, theta_d, phi_d)))
+    return _hd_to_io_trig(np.cos(th), np.sin(th), np.cos(ph), np.sin(ph),
+                          np.cos(td), np.sin(td), np.cos(pd), np.sin(pd))
+
+
+def _hd_to_io_trig(cth, sth, cph, sph_, ctd, std, cpd, spd):
+    """:func:`hd_to_io` from precomputed cosines and sines (grids reuse per-axis tables)."""
+    dx = std * cpd
+    dy = std * spd
+    dz = ctd
+    # Ry(θh): (x, y, z) -> (cosθ x + sinθ z, y, −sinθ x + cosθ z); then Rz(φh).
+    ax = cth * dx + sth * dz
+    az = -sth * dx + cth * dz
+    bx = cth * dx - sth * dz          # the same for the mirrored d = (−dx, −dy, dz), negated x
+    bz = sth * dx + cth * dz
+    wi = np.stack([cph * ax - sph_ * dy, sph_ * ax + cph * dy, az], axis=-1)
+    wo = np.stack([-(cph * bx) + sph_ * dy, -(sph_ * bx) - cph * dy, bz], axis=-1)
+    return wi, wo

@@ -1,0 +1,47 @@
+"""Analytic BRDF models and their registry.
+
+``MODELS`` maps a model name to its class; :func:`create` builds one from keyword
+parameters (angles in radians), validating every value against the model's declared
+:class:`~brdftab.params.Param` list. One module per model family; shared microfacet parts
+live in :mod:`~brdftab.models.distributions`, :mod:`~brdftab.models.shadowing` and
+:mod:`~brdftab.models.fresnel`.
+"""
+
+from __future__ import annotations
+
+from ..errors import BrdftabError
+from ..params import suggest
+from .combinators import Scale, Sum
+from .lambert import Lambert
+from .microfacet import Microfacet
+
+__all__ = ["MODELS", "create", "register", "get"]
+
+#: Model classes by name.
+MODELS: dict = {}
+
+
+def register(cls):
+    """Add a model class to :data:`MODELS` under ``cls.name`` (usable as a decorator)."""
+    MODELS[cls.name] = cls
+    return cls
+
+
+for _cls in (Lambert, Microfacet, Sum, Scale):
+    register(_cls)
+
+
+def get(name: str):
+    """The model class called ``name``; an unknown name lists the valid ones."""
+    if not isinstance(name, str) or name not in MODELS:
+        hint = suggest(name, MODELS) if isinstance(name, str) else ""
+        raise BrdftabError(f"unknown model {name!r}{hint}; valid models: {', '.join(sorted(MODELS))}")
+    return MODELS[name]
+
+
+def create(name: str, **params):
+    """Build model ``name`` from keyword parameters (angles in radians).
+
+    Example: ``create("microfacet", distribution="ggx", alpha=0.3)``.
+    """
+    return get(name)(**params)

@@ -1,0 +1,34 @@
+"""Lambertian (ideal diffuse) reflection.
+
+``f = ρ / π`` [sr⁻¹] with ρ the directional-hemispherical reflectance (albedo) per channel.
+
+Reference: J. H. Lambert, *Photometria* (1760); F. E. Nicodemus et al., *Geometrical
+Considerations and Nomenclature for Reflectance*, NBS Monograph 160 (1977), §5.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..brdf import Model
+from ..params import Param
+
+__all__ = ["Lambert"]
+
+
+class Lambert(Model):
+    name = "lambert"
+    summary = "Ideal diffuse reflector, f = albedo / π."
+    reference = "J. H. Lambert, Photometria (1760); Nicodemus et al., NBS Monograph 160 (1977)."
+    params = (
+        Param("albedo", "channel", "Directional-hemispherical reflectance ρ (per channel or spectrum).",
+              default=1.0, minimum=0.0, maximum=1.0),
+    )
+
+    def _setup(self, albedo):
+        self.albedo = albedo
+        self.layout = albedo.layout
+
+    def _eval(self, wi, wo, lam, n):
+        rho = self.albedo.at(lam, n)
+        return np.broadcast_to(rho / np.pi, (wi.shape[0], n)).copy()

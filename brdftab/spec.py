@@ -1,0 +1,262 @@
+"""Spec files (TOML): what to tabulate, on which grid, into which files.
+
+Layout::
+
+    description = "optional free text"
+
+    [model]                  # name + parameters; angles in degrees only, as <name>_deg
+    name = "microfacet"
+    distribution = "ggx"
+    alpha = 0.3
+    fresnel = "conductor"
+    n = [0.143, 0.374, 1.442]        # one value per channel (R, G, B) ...
+    k = [3.983, 2.385, 1.603]        # ... or a spectrum {wavelengths_nm = [...], values = [...]}
+
+    [grid]                   # see brdftab.grids.grid_from_config
+    type = "merl"            # merl | rusinkiewicz | spherical
+    # wavelengths_nm = [450, 550, 650]   (spectral models)
+
+    [[output]]               # one table per output; path relative to this file's folder
+    path = "ggx-gold.nc"
+    # format = "netcdf"      (default: from the extension); other keys are format options
+    dtype = "float32"
+
+    [validation]             # thresholds for the checks run before export
+    allow_invalid = false
+
+Combinators nest: ``name = "sum"`` with ``[[model.terms]]`` tables; ``name = "scale"`` with
+``factor`` and a ``[model.term]`` table.
+
+Everything is checked strictly: an unknown key, unknown model, missing, mistyped or
+out-of-range value raises :class:`~brdftab.errors.SpecError` with one line naming the file,
+the key and what is expected.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .brdf import BRDF
+from .errors import BrdftabError, ParameterError, SpecError
+from .grids import Grid, grid_from_config
+from .params import suggest
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["Spec", "Output", "load_spec", "build_model"]
+
+TOP_KEYS = ("description", "model", "grid", "output", "validation")
+VALIDATION_KEYS = {"allow_invalid": bool}
+
+
+@dataclass
+class Output:
+    """One ``[[output]]``: target path (absolute), format name (or None) and format options."""
+
+    path: Path
+    format: str | None = None
+    options: dict = field(default_factory=dict)
+
+
+@dataclass
+class Spec:
+    """A validated spec file."""
+
+    path: Path
+    sha256: str
+    model: BRDF
+    grid: Grid
+    wavelengths: np.ndarray | None
+    outputs: list
+    validation: dict
+    description: str = ""
+    raw: dict = field(default_factory=dict)
+
+
+def load_spec(path) -> Spec:
+    """Read and validate the spec file at ``path``."""
+    path = Path(path)
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise SpecError(f"{path}: no such spec file") from None
+    except OSError as exc:
+        raise SpecError(f"{path}: cannot read ({exc.strerror})") from None
+    try:
+        raw = tomllib.loads(data.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise SpecError(f"{path}: not a UTF-8 text file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{path}: invalid TOML: {exc}") from None
+    return parse_spec(raw, path, hashlib.sha256(data).hexdigest())
+
+
+def _fail(path, key, message):
+    return SpecError(f"{path}: {key}: {message}" if key else f"{path}: {message}")
+
+
+def parse_spec(raw: dict, path: Path, sha256: str = "") -> Spec:
+    """Validate an already-parsed spec mapping (paths resolve against ``path``'s folder)."""
+    for key in raw:
+        if key not in TOP_KEYS:
+            raise _fail(path, key, f"unknown top-level key{suggest(key, TOP_KEYS)}; valid: {', '.join(TOP_KEYS)}")
+    description = raw.get("description", "")
+    if not isinstance(description, str):
+        raise _fail(path, "description", "expected a string")
+    for section in ("model", "grid"):
+        if section not in raw:
+            raise _fail(path, f"[{section}]", "missing section")
+        if not isinstance(raw[section], dict):
+            raise _fail(path, section, "expected a table [" + section + "]")
+    model = build_model(raw["model"], "model", path)
+    grid_cfg = raw["grid"]
+    try:
+        grid = grid_from_config(grid_cfg)
+    except ParameterError as exc:
+        raise _fail(path, f"grid.{exc.key}", exc.detail) from None
+    wavelengths = _wavelengths(grid_cfg, model, path)
+    _check_compatible(model, grid, path)
+    outputs = _outputs(raw.get("output"), path)
+    validation = _validation(raw.get("validation", {}), path)
+    return Spec(path=path, sha256=sha256, model=model, grid=grid, wavelengths=wavelengths, outputs=outputs,
+                validation=validation, description=description, raw=raw)
+
+
+def build_model(table, where: str, path) -> BRDF:
+    """Build a model from a spec table (``name`` + parameters; ``*_deg`` angles)."""
+    from . import models
+
+    if not isinstance(table, dict):
+        raise _fail(path, where, "expected a table with a model name and its parameters")
+    name = table.get("name")
+    if name is None:
+        raise _fail(path, f"{where}.name", f"missing model name; valid models: {', '.join(sorted(models.MODELS))}")
+    if not isinstance(name, str) or name not in models.MODELS:
+        hint = suggest(name, models.MODELS) if isinstance(name, str) else ""
+        raise _fail(path, f"{where}.name", f"unknown model {name!r}{hint}; valid models: "
+                    f"{', '.join(sorted(models.MODELS))}")
+    cls = models.MODELS[name]
+    declared = {p.name: p for p in cls.params}
+    by_spec_key = {p.spec_key: p for p in cls.params}
+    kwargs = {}
+    for key, value in table.items():
+        if key == "name":
+            continue
+        p = by_spec_key.get(key)
+        if p is None:
+            if key in declared and declared[key].angle:
+                raise _fail(path, f"{where}.{key}", f"angles are given in degrees in spec files: write {key}_deg")
+            raise _fail(path, f"{where}.{key}", f"unknown parameter for model '{name}'{suggest(key, by_spec_key)};"
+                        f" valid: {', '.join(by_spec_key)}")
+        if p.kind == "brdf":
+            value = build_model(value, f"{where}.{key}", path)
+        elif p.kind == "brdfs":
+            if not isinstance(value, list) or not value:
+                raise _fail(path, f"{where}.{key}", f"expected one or more [[{where}.{key}]] tables")
+            value = [build_model(v, f"{where}.{key}[{i}]", path) for i, v in enumerate(value)]
+        elif p.angle:
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise _fail(path, f"{where}.{key}", f"expected an angle in degrees, got {value!r}")
+            value = math.radians(value)
+        kwargs[p.name] = value
+    try:
+        return cls(**kwargs)
+    except ParameterError as exc:
+        key = by_spec_key_name(cls, exc.key)
+        raise _fail(path, f"{where}.{key}" if key else where, exc.detail) from None
+    except BrdftabError as exc:
+        raise _fail(path, where, str(exc)) from None
+
+
+def by_spec_key_name(cls, name: str) -> str:
+    for p in cls.params:
+        if p.name == name:
+            return p.spec_key
+    return name
+
+
+def _wavelengths(grid_cfg, model, path):
+    if "wavelengths_nm" not in grid_cfg:
+        if model.spectral and model.wavelengths is None:
+            raise _fail(path, "grid.wavelengths_nm", "the model is spectral: list the wavelengths to sample")
+        return None
+    raw = grid_cfg["wavelengths_nm"]
+    if (not isinstance(raw, list) or not raw
+            or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in raw)):
+        raise _fail(path, "grid.wavelengths_nm", "expected a non-empty list of wavelengths in nm")
+    lam = np.asarray(raw, float)
+    if np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
+        raise _fail(path, "grid.wavelengths_nm", "expected positive wavelengths in increasing order")
+    if not model.spectral and not model.layout.grey:
+        raise _fail(path, "grid.wavelengths_nm", f"the model has channels {list(model.channels)}, not a "
+                    "spectrum; remove wavelengths_nm or give its parameters as spectra")
+    if model.spectral and model.wavelengths is not None:
+        lo, hi = model.wavelengths[0], model.wavelengths[-1]
+        if lam[0] < lo or lam[-1] > hi:
+            raise _fail(path, "grid.wavelengths_nm", f"outside the model's spectral data [{lo:g}, {hi:g}] nm")
+    return lam
+
+
+def _check_compatible(model, grid, path):
+    fold = getattr(grid, "phi_d_fold", "none")
+    if not model.isotropic and getattr(grid, "anisotropic", True) is False:
+        raise _fail(path, "grid", f"model '{model.name}' is anisotropic; use an anisotropic grid "
+                    "(type = 'rusinkiewicz', anisotropic = true) or a spherical grid")
+    if not model.reciprocal and "reciprocity" in fold:
+        raise _fail(path, "grid.phi_d_fold", f"model '{model.name}' is not reciprocal; folding phi_d by "
+                    "reciprocity would discard half of it (use phi_d_fold = 'none' or 'bilateral')")
+
+
+def _outputs(raw, path):
+    from . import formats
+
+    if raw is None:
+        raise _fail(path, "[[output]]", "missing: add at least one [[output]] with a path")
+    if not isinstance(raw, list) or not raw:
+        raise _fail(path, "output", "expected one or more [[output]] tables")
+    outs = []
+    for i, item in enumerate(raw):
+        where = f"output[{i}]"
+        if not isinstance(item, dict):
+            raise _fail(path, where, "expected a table with a path")
+        if "path" not in item or not isinstance(item["path"], str) or not item["path"]:
+            raise _fail(path, f"{where}.path", "missing or not a string")
+        fmt_name = item.get("format")
+        try:
+            fmt = formats.format_for(item["path"], fmt_name)
+        except BrdftabError as exc:
+            key = "format" if fmt_name is not None else "path"
+            raise _fail(path, f"{where}.{key}", str(exc)) from None
+        options = {k: v for k, v in item.items() if k not in ("path", "format")}
+        for k in options:
+            if k not in fmt.options:
+                raise _fail(path, f"{where}.{k}", f"unknown option for format {fmt.name}{suggest(k, fmt.options)}; "
+                            f"valid: {', '.join(fmt.options) or 'none'}")
+        target = Path(item["path"])
+        if not target.is_absolute():
+            target = path.parent / target
+        outs.append(Output(path=target, format=fmt.name, options=options))
+    return outs
+
+
+def _validation(raw, path):
+    if not isinstance(raw, dict):
+        raise _fail(path, "validation", "expected a table [validation]")
+    out = {"allow_invalid": False}
+    for key, value in raw.items():
+        if key not in VALIDATION_KEYS:
+            raise _fail(path, f"validation.{key}", f"unknown key{suggest(key, VALIDATION_KEYS)}; valid: "
+                        f"{', '.join(VALIDATION_KEYS)}")
+        if not isinstance(value, VALIDATION_KEYS[key]):
+            raise _fail(path, f"validation.{key}", f"expected {VALIDATION_KEYS[key].__name__}")
+        out[key] = value
+    return out
