@@ -196,7 +196,7 @@ class Grid:
 
 def _uniform(lo, length, n, position):
     offset = 0.5 if position == "bin-centre" else 0.0
-    return lo + (np.arange(n) + offset) * (length / n)
+    return lo + (np.arange(n) + offset) * length / n
 
 
 class RusinkiewiczGrid(Grid):

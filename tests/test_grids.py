@@ -1,0 +1,146 @@
+"""Grids: node positions, index <-> direction maps, folds, spec configuration."""
+
+import numpy as np
+import pytest
+
+from brdftab.errors import ParameterError
+from brdftab.geometry import io_to_hd, sph_to_vec
+from brdftab.grids import (RusinkiewiczGrid, SphericalGrid, fold_phi_d, grid_from_config, merl_grid)
+
+
+def test_merl_bin_centre_nodes():
+    g = merl_grid()
+    assert g.shape == (90, 90, 180) and g.dims == ("theta_h", "theta_d", "phi_d")
+    i = np.arange(90)
+    assert np.allclose(g.axes[0].values, ((i + 0.5) / 90) ** 2 * np.pi / 2, rtol=1e-15)
+    assert np.allclose(g.axes[1].values, (i + 0.5) * np.pi / 180, rtol=1e-15)
+    assert np.allclose(g.axes[2].values, (np.arange(180) + 0.5) * np.pi / 180, rtol=1e-15)
+    assert g.attrs() == {"parameterization": "rusinkiewicz", "grid": "merl", "theta_h_spacing": "merl",
+                         "phi_d_fold": "reciprocity", "sample_position": "bin-centre"}
+
+
+def test_merl_lower_edge_nodes():
+    g = merl_grid("lower-edge")
+    i = np.arange(90)
+    assert np.array_equal(g.axes[0].values, (i / 90) ** 2 * np.pi / 2)
+    assert g.axes[1].values[0] == 0 and g.axes[2].values[0] == 0
+    assert g.attrs()["sample_position"] == "lower-edge"
+
+
+def test_merl_nodes_fall_in_reference_bins():
+    # Every bin-centre node, pushed through directions and MERL's reference (floor) lookup,
+    # lands in its own bin (formats reference §1.2).
+    g = merl_grid()
+    wi, wo = g.directions()
+    th, _, td, pd = io_to_hd(wi, wo)
+    pd = np.where(pd < 0, pd + np.pi, pd)
+    i = np.clip(np.floor(90 * np.sqrt(th / (np.pi / 2))), 0, 89).astype(int)
+    j = np.clip(np.floor(td / (np.pi / 2) * 90), 0, 89).astype(int)
+    k = np.clip(np.floor(pd / np.pi * 180), 0, 179).astype(int)
+    ii, jj, kk = np.unravel_index(np.arange(g.size), g.shape)
+    assert np.array_equal(i, ii) and np.array_equal(j, jj) and np.array_equal(k, kk)
+
+
+@pytest.mark.parametrize("grid", [
+    merl_grid(),
+    RusinkiewiczGrid(30, 20, 40, theta_h_spacing="linear", phi_d_fold="none"),
+    RusinkiewiczGrid(30, 20, 40, phi_d_fold="bilateral"),
+    RusinkiewiczGrid(30, 20, 40, phi_d_fold="reciprocity+bilateral"),
+    RusinkiewiczGrid(16, 12, 24, 36, phi_d_fold="reciprocity"),
+    RusinkiewiczGrid(np.radians([0.5, 1, 2, 5, 10, 30, 60]), 10, 18),
+    SphericalGrid(np.radians([5, 30, 60]), np.radians([0, 40]), np.radians(np.arange(2.5, 90, 5)),
+                  np.radians(np.arange(0, 360, 15))),
+    SphericalGrid(np.radians([10, 45]), [0.0], np.radians(np.arange(-5, 5.1, 0.5)), np.radians([-4, -2, 0, 2, 4]),
+                  relative_to="specular"),
+], ids=["merl", "rus-none", "rus-bilateral", "rus-both", "rus-aniso", "rus-explicit", "spherical", "sph-rel"])
+def test_index_round_trip(grid):
+    wi, wo = grid.directions()
+    idx = grid.fractional_index(wi, wo)
+    expected = np.unravel_index(np.arange(grid.size), grid.shape)
+    for a, got, exp in zip(grid.axes, idx, expected):
+        assert np.array_equal(got, exp.astype(float)), a.name
+
+
+def test_chunked_directions_equal_whole():
+    g = RusinkiewiczGrid(10, 10, 20)
+    wi, wo = g.directions()
+    wi2, wo2 = g.directions(37, 211)
+    assert np.array_equal(wi[37:211], wi2) and np.array_equal(wo[37:211], wo2)
+
+
+@pytest.mark.parametrize("fold, lo, hi", [("none", 0, 2 * np.pi), ("reciprocity", 0, np.pi),
+                                          ("bilateral", 0, np.pi), ("reciprocity+bilateral", 0, np.pi / 2)])
+def test_fold_ranges_and_symmetries(fold, lo, hi):
+    x = np.linspace(-np.pi, np.pi, 1001)
+    f = fold_phi_d(x, fold)
+    assert np.all(f >= lo) and np.all(f <= hi + 1e-15)
+    if "reciprocity" in fold:
+        assert np.allclose(fold_phi_d(x + np.pi, fold), f, atol=1e-12)
+    if "bilateral" in fold:
+        assert np.allclose(fold_phi_d(-x, fold), f, atol=1e-12)
+    if fold == "none":
+        assert np.allclose(np.cos(f), np.cos(x)) and np.allclose(np.sin(f), np.sin(x))
+
+
+def test_swapping_wi_wo_adds_pi_to_phi_d():
+    # the reason MERL's reciprocity fold is φd ≡ φd + π
+    rng = np.random.default_rng(0)
+    wi = sph_to_vec(rng.uniform(0, 1.4, 100), rng.uniform(-3, 3, 100))
+    wo = sph_to_vec(rng.uniform(0, 1.4, 100), rng.uniform(-3, 3, 100))
+    pd1 = io_to_hd(wi, wo)[3]
+    pd2 = io_to_hd(wo, wi)[3]
+    assert np.allclose(np.mod(pd2 - pd1, 2 * np.pi), np.pi, atol=1e-9)
+
+
+def test_config_rusinkiewicz_and_ranges():
+    g = grid_from_config({"type": "rusinkiewicz", "n_theta_h": 45, "theta_h_spacing": "merl", "n_theta_d": 30,
+                          "phi_d_deg": [{"start": 0, "stop": 180, "step": 10, "endpoint": False}],
+                          "sample_position": "lower-edge"})
+    assert g.shape == (45, 30, 18)
+    assert np.allclose(np.degrees(g.axes[2].values), np.arange(0, 180, 10))
+    assert g.axes[0].warp == "sqrt"
+
+
+def test_config_spherical_zoomed_around_specular():
+    # a coarse theta_o sweep plus a fine 0.1° zoom around the mirror direction of θi = 30°
+    g = grid_from_config({"type": "spherical", "theta_i_deg": [30], "phi_i_deg": [0],
+                          "theta_o_deg": [{"start": 0, "stop": 85, "step": 5}, {"start": 29, "stop": 31, "step": 0.1}],
+                          "phi_o_deg": [{"start": 0, "stop": 360, "num": 72, "endpoint": False}]})
+    to = np.degrees(g.axes[2].values)
+    assert np.all(np.diff(to) > 0) and np.isclose(to, 30.0).sum() == 1
+    assert np.sum((to >= 29) & (to <= 31)) == 21
+    assert g.axes[3].period == pytest.approx(2 * np.pi)
+    rel = grid_from_config({"type": "spherical", "relative_to": "specular", "theta_i_deg": [10, 50],
+                            "phi_i_deg": [0], "dtheta_o_deg": {"start": -2, "stop": 2, "num": 41},
+                            "dphi_o_deg": {"start": -2, "stop": 2, "num": 41}})
+    wi, wo = rel.directions()
+    mid = np.ravel_multi_index((1, 0, 20, 20), rel.shape)
+    assert np.allclose(wo[mid], sph_to_vec(np.radians(50), np.pi), atol=1e-12)
+
+
+@pytest.mark.parametrize("cfg, key", [
+    ({"type": "merl", "sample_position": "centre"}, "sample_position"),
+    ({"type": "merll"}, "type"),
+    ({"type": "merl", "n_theta_h": 10}, "n_theta_h"),
+    ({"type": "rusinkiewicz", "n_theta_h": 0}, "n_theta_h"),
+    ({"type": "rusinkiewicz", "n_theta_h": 2.5}, "n_theta_h"),
+    ({"type": "rusinkiewicz", "phi_d_fold": "mirror"}, "phi_d_fold"),
+    ({"type": "rusinkiewicz", "theta_h_deg": [0, 95]}, "theta_h"),
+    ({"type": "rusinkiewicz", "n_phi_h": 10}, "n_phi_h"),
+    ({"type": "rusinkiewicz", "anisotropic": True, "phi_d_fold": "bilateral"}, "phi_d_fold"),
+    ({"type": "spherical", "theta_i_deg": [0], "phi_i_deg": [0], "theta_o_deg": [0]}, "phi_o_deg"),
+    ({"type": "spherical", "theta_i_deg": [0], "phi_i_deg": [0], "theta_o_deg": [0], "phi_o_deg": [0],
+      "dphi_o_deg": [0]}, "dphi_o_deg"),
+    ({"type": "spherical", "theta_i_deg": [{"start": 0, "stop": 10}], "phi_i_deg": [0], "theta_o_deg": [0],
+      "phi_o_deg": [0]}, "theta_i_deg"),
+])
+def test_config_errors_name_the_key(cfg, key):
+    with pytest.raises(ParameterError) as exc:
+        grid_from_config(cfg)
+    assert exc.value.key == key
+
+
+def test_equality():
+    assert merl_grid().equals(merl_grid())
+    assert not merl_grid().equals(merl_grid("lower-edge"))
+    assert not merl_grid().equals(RusinkiewiczGrid(90, 90, 180))  # linear θh

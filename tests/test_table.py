@@ -1,0 +1,133 @@
+"""Tables: tabulation, metadata, evaluation by interpolation."""
+
+import json
+
+import numpy as np
+import pytest
+
+import brdftab
+from brdftab import models
+from brdftab.geometry import normalize, rot_z, sph_to_vec
+from brdftab.grids import RusinkiewiczGrid, SphericalGrid, merl_grid
+from brdftab.table import tabulate
+
+GGX = models.create("microfacet", alpha=0.3, fresnel="conductor", n=[0.2, 0.4, 1.4], k=[3.5, 2.4, 1.8])
+
+
+def random_pairs(n, seed=0, max_theta=np.radians(85)):
+    rng = np.random.default_rng(seed)
+    # uniform in cosθ between cos(max_theta) and 1
+    ti = np.arccos(rng.uniform(np.cos(max_theta), 1, n))
+    to = np.arccos(rng.uniform(np.cos(max_theta), 1, n))
+    return sph_to_vec(ti, rng.uniform(-np.pi, np.pi, n)), sph_to_vec(to, rng.uniform(-np.pi, np.pi, n))
+
+
+@pytest.fixture(scope="module")
+def merl_table():
+    return tabulate(GGX, merl_grid(), progress=False)
+
+
+def test_metadata(merl_table):
+    ds = merl_table.ds
+    assert ds["brdf"].attrs["units"] == "sr-1"
+    assert ds["brdf"].dims == ("theta_h", "theta_d", "phi_d", "channel")
+    assert list(ds["channel"].values) == ["R", "G", "B"]
+    for c in ("theta_h", "theta_d", "phi_d"):
+        assert ds[c].attrs["units"] == "rad"
+    a = ds.attrs
+    assert a["parameterization"] == "rusinkiewicz" and a["sample_position"] == "bin-centre"
+    assert a["phi_d_fold"] == "reciprocity" and a["model"] == "microfacet"
+    assert json.loads(a["parameters"])["alpha"] == 0.3
+    assert a["brdftab_version"] == brdftab.__version__ and a["created"]
+
+
+def test_values_equal_model_at_nodes(merl_table):
+    wi, wo = merl_table.grid.directions()
+    assert np.array_equal(merl_table.values.reshape(-1, 3), GGX.eval(wi, wo))
+
+
+@pytest.mark.parametrize("grid, brdf", [
+    (merl_grid(), GGX),
+    (merl_grid("lower-edge"), GGX),
+    (RusinkiewiczGrid(20, 15, 36, phi_d_fold="none"), GGX),
+    (RusinkiewiczGrid(12, 10, 18, 24), models.create("microfacet", alpha_x=0.1, alpha_y=0.4)),
+    (SphericalGrid(np.radians([10, 40, 70]), np.radians([0, 90, 180, 270]), np.radians(np.arange(1, 90, 4)),
+                   np.radians(np.arange(0, 360, 20))), models.create("microfacet", alpha_x=0.1, alpha_y=0.4)),
+    (SphericalGrid(np.radians([20, 60]), [0.0], np.radians(np.linspace(-3, 3, 13)), np.radians([-2, 0, 2]),
+                   relative_to="specular"), GGX),
+], ids=["merl", "merl-edge", "rus-none", "rus-aniso", "spherical", "sph-rel"])
+def test_table_at_its_own_nodes_is_exact(grid, brdf):
+    table = tabulate(brdf, grid, progress=False)
+    wi, wo = grid.directions()
+    got = table.eval(wi, wo)
+    stored = table.values.reshape(got.shape)
+    above = (wi[:, 2] > 0) & (wo[:, 2] > 0)
+    # Nodes at θh = 0 or θd = 0 (lower-edge) are degenerate: all their φ nodes are one
+    # physical configuration, so they are equal only to rounding.
+    th, _, td, _ = brdftab.geometry.io_to_hd(wi, wo)
+    degenerate = (th < 1e-9) | (td < 1e-9) if grid.parameterization == "rusinkiewicz" else np.zeros(len(wi), bool)
+    ok = above & ~degenerate
+    assert np.array_equal(got[ok], stored[ok])
+    assert np.allclose(got[above & degenerate], stored[above & degenerate], rtol=1e-9)
+    assert np.all(got[~above] == 0)
+
+
+def test_merl_table_between_nodes_within_two_percent(merl_table):
+    # GGX α = 0.3 on the MERL grid, evaluated at random pairs (between nodes)
+    wi, wo = random_pairs(20000, seed=1)
+    f = GGX.eval(wi, wo)
+    t = merl_table.eval(wi, wo)
+    keep = f > 1e-3 * f.max()
+    rel = np.abs(t[keep] - f[keep]) / f[keep]
+    assert np.median(rel) < 0.02
+    assert np.percentile(rel, 90) < 0.1
+
+
+def test_table_honours_reciprocity_fold(merl_table):
+    wi, wo = random_pairs(500, seed=2)
+    assert np.allclose(merl_table.eval(wi, wo), merl_table.eval(wo, wi), rtol=1e-12)
+
+
+def test_isotropic_table_rotation_invariant(merl_table):
+    wi, wo = random_pairs(500, seed=3)
+    a = merl_table.eval(wi, wo)
+    b = merl_table.eval(rot_z(wi, 1.234), rot_z(wo, 1.234))
+    assert np.allclose(a, b, rtol=1e-9)
+
+
+def test_spherical_isotropic_single_phi_i_rotates():
+    grid = SphericalGrid(np.radians(np.arange(0, 90, 5)), [0.0], np.radians(np.arange(0, 90, 5)),
+                         np.radians(np.arange(0, 360, 10)))
+    lam = models.create("sum", terms=[models.create("lambert", albedo=0.5), models.create("microfacet", alpha=0.5)])
+    t = tabulate(lam, grid, progress=False)
+    # a node pair rotated by 37° about the normal reads the same node value
+    wi, wo = grid.directions()
+    rot = t.eval(rot_z(wi, np.radians(37)), rot_z(wo, np.radians(37)))
+    assert np.allclose(rot, t.values.reshape(-1, 1), rtol=1e-9)
+
+
+def test_spectral_table_interpolates_wavelength():
+    spectral = models.create("lambert", albedo={"wavelengths_nm": [400, 500, 700], "values": [0.1, 0.3, 0.7]})
+    t = tabulate(spectral, RusinkiewiczGrid(4, 4, 4), wavelengths=[400, 500, 700], progress=False)
+    assert t.spectral and list(t.wavelengths) == [400, 500, 700]
+    wi, wo = sph_to_vec(0.2, 0.0), sph_to_vec(0.3, 1.0)
+    assert t.eval(wi, wo, [450, 600]) == pytest.approx(np.array([0.2, 0.5]) / np.pi)
+    assert t.eval(wi, wo) == pytest.approx(np.array([0.1, 0.3, 0.7]) / np.pi)
+
+
+def test_chunk_size_does_not_change_values():
+    g = RusinkiewiczGrid(10, 9, 8)
+    a = tabulate(GGX, g, chunk_size=7, progress=False)
+    b = tabulate(GGX, g, chunk_size=1 << 20, progress=False)
+    assert np.array_equal(a.values, b.values)
+
+
+def test_float32_tabulation():
+    t = tabulate(GGX, RusinkiewiczGrid(6, 6, 6), dtype="float32", progress=False)
+    assert t.values.dtype == np.float32
+
+
+def test_table_eval_shapes():
+    t = tabulate(GGX, RusinkiewiczGrid(6, 6, 6), progress=False)
+    wi = normalize(np.ones((4, 5, 3)))
+    assert t.eval(wi, wi).shape == (4, 5, 3)
