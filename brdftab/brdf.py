@@ -23,7 +23,10 @@ from .channels import Layout
 from .geometry import as_directions
 from .params import parse_params
 
-__all__ = ["BRDF", "Model"]
+__all__ = ["BRDF", "Model", "EVAL_CHUNK"]
+
+#: Direction pairs evaluated at once by :meth:`BRDF.eval`.
+EVAL_CHUNK = 1 << 16
 
 
 class BRDF:
@@ -61,13 +64,18 @@ class BRDF:
         wi, wo = as_directions(wi, wo)
         lam = self.layout.resolve(wavelengths)
         n = self.layout.n_out(lam)
-        above = (wi[..., 2] > 0) & (wo[..., 2] > 0)
-        out = np.zeros(wi.shape[:-1] + (n,))
-        if above.all():
-            out[...] = self._eval(wi.reshape(-1, 3), wo.reshape(-1, 3), lam, n).reshape(out.shape)
-        elif above.any():
-            out[above] = self._eval(wi[above], wo[above], lam, n)
-        return out
+        lead = wi.shape[:-1]
+        wi = wi.reshape(-1, 3)
+        wo = wo.reshape(-1, 3)
+        out = np.zeros((wi.shape[0], n))
+        above = np.flatnonzero((wi[:, 2] > 0) & (wo[:, 2] > 0))
+        # Bounded chunks keep the temporaries of long evaluations to a few tens of MB.
+        for start in range(0, above.size, EVAL_CHUNK):
+            sel = above[start:start + EVAL_CHUNK]
+            if sel.size == wi.shape[0]:
+                sel = slice(None)
+            out[sel] = self._eval(wi[sel], wo[sel], lam, n)
+        return out.reshape(lead + (n,))
 
     def _eval(self, wi, wo, lam, n) -> np.ndarray:
         """Evaluate at ``(M, 3)`` above-horizon pairs; return ``(M, n)``.

@@ -46,7 +46,7 @@ from .geometry import _hd_to_io_trig, io_to_hd, sph_to_vec, vec_to_sph
 from .params import suggest
 
 __all__ = ["Axis", "Grid", "RusinkiewiczGrid", "SphericalGrid", "merl_grid", "grid_from_config",
-           "grid_from_dataset", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS", "GRID_TYPES"]
+           "grid_from_dataset", "check_grid", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS", "GRID_TYPES"]
 
 HALF_PI = 0.5 * np.pi
 TWO_PI = 2.0 * np.pi
@@ -234,7 +234,8 @@ class RusinkiewiczGrid(Grid):
                     vals = _uniform(lo, length, n, sample_position)
                 return Axis(label, vals, warp, length if periodic else None)
             vals = np.asarray(spec, float)
-            _check_range(label, vals, lo, lo + length, closed=not periodic)
+            why = f" (phi_d_fold = '{phi_d_fold}')" if label == "phi_d" else ""
+            _check_range(label, vals, lo, lo + length, closed=not periodic, why=why)
             return Axis(label, vals, "linear", length if periodic else None)
 
         th = axis("theta_h", theta_h, 0.0, HALF_PI, False, "sqrt" if self.theta_h_spacing == "merl" else "linear")
@@ -393,7 +394,7 @@ def _count(label, n):
     return int(n)
 
 
-def _check_range(label, vals, lo, hi, closed=True):
+def _check_range(label, vals, lo, hi, closed=True, why=""):
     if vals.ndim != 1 or vals.size == 0 or not np.all(np.isfinite(vals)):
         raise ParameterError(label, "expected a non-empty list of finite angles")
     if np.any(np.diff(vals) <= 0):
@@ -401,7 +402,8 @@ def _check_range(label, vals, lo, hi, closed=True):
     eps = 1e-12
     if vals[0] < lo - eps or vals[-1] > hi + eps or (not closed and vals[-1] >= hi - eps):
         bracket = "]" if closed else ")"
-        raise ParameterError(label, f"values must lie in [{np.degrees(lo):g}, {np.degrees(hi):g}{bracket} degrees")
+        raise ParameterError(label, f"values must lie in [{np.degrees(lo):g}, {np.degrees(hi):g}{bracket} degrees"
+                                    f"{why}, got {np.degrees(vals[0]):g} .. {np.degrees(vals[-1]):g}")
 
 
 # --------------------------------------------------------------------------------------------
@@ -490,6 +492,16 @@ def grid_from_config(cfg: dict) -> Grid:
         if key not in valid:
             raise ParameterError(key, f"unknown key for a '{kind}' grid{suggest(key, valid)}; valid: "
                                  f"{', '.join(sorted(valid))}")
+    try:
+        return _grid_from_config(kind, cfg)
+    except ParameterError as exc:
+        # axis errors name the axis; the spec key of an explicit list is <axis>_deg
+        if exc.key in _LONG_NAMES and f"{exc.key}_deg" in cfg:
+            raise ParameterError(f"{exc.key}_deg", exc.detail) from None
+        raise
+
+
+def _grid_from_config(kind, cfg):
     pos = cfg.get("sample_position", "bin-centre")
     if kind == "merl":
         return merl_grid(_choice("sample_position", pos, SAMPLE_POSITIONS))
@@ -541,6 +553,23 @@ def _choice(key, value, choices):
         raise ParameterError(key, f"expected one of {', '.join(map(repr, choices))}, got {value!r}"
                              f"{suggest(str(value), choices)}")
     return value
+
+
+def check_grid(brdf, grid: Grid) -> None:
+    """Refuse grids that would silently lose part of ``brdf``.
+
+    An anisotropic BRDF needs φh (an anisotropic Rusinkiewicz grid or a spherical grid); a
+    non-reciprocal one cannot be folded by reciprocity; a bilateral fold needs isotropy.
+    """
+    fold = getattr(grid, "phi_d_fold", "none")
+    if not brdf.isotropic and getattr(grid, "anisotropic", True) is False:
+        raise ParameterError("anisotropic", f"model '{brdf.name}' is anisotropic; an isotropic grid would sample "
+                             "only phi_h = 0 (use an anisotropic Rusinkiewicz grid or a spherical grid)")
+    if not brdf.reciprocal and "reciprocity" in fold:
+        raise ParameterError("phi_d_fold", f"model '{brdf.name}' is not reciprocal; folding phi_d by reciprocity "
+                             "would discard half of it (use phi_d_fold = 'none')")
+    if not brdf.isotropic and "bilateral" in fold:
+        raise ParameterError("phi_d_fold", f"model '{brdf.name}' is anisotropic; a bilateral fold assumes isotropy")
 
 
 def grid_from_dataset(ds) -> Grid:

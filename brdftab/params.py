@@ -121,7 +121,8 @@ class Param:
             try:
                 cv = ChannelValue.parse(value)
             except ValueError as exc:
-                raise ParameterError(self.name, f"{exc}; expected {self.expected()}") from None
+                why = "" if isinstance(value, (bool, str)) else f" ({exc})"
+                raise ParameterError(self.name, f"expected {self.expected()}, got {_show(value)}{why}") from None
             if not self._in_range(cv.values):
                 raise bad
             return cv
@@ -167,7 +168,7 @@ def parse_params(declared, given: dict, model: str) -> dict:
         if p.name not in out:
             if p.required:
                 raise ParameterError(p.name, f"missing required parameter of model '{model}': expected {p.expected()}")
-            out[p.name] = p.default
+            out[p.name] = None if p.default is None else p.convert(p.default)
     return out
 
 

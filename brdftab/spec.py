@@ -44,7 +44,7 @@ import numpy as np
 
 from .brdf import BRDF
 from .errors import BrdftabError, ParameterError, SpecError
-from .grids import Grid, grid_from_config
+from .grids import Grid, check_grid, grid_from_config
 from .params import suggest
 
 if sys.version_info >= (3, 11):
@@ -124,7 +124,10 @@ def parse_spec(raw: dict, path: Path, sha256: str = "") -> Spec:
     except ParameterError as exc:
         raise _fail(path, f"grid.{exc.key}", exc.detail) from None
     wavelengths = _wavelengths(grid_cfg, model, path)
-    _check_compatible(model, grid, path)
+    try:
+        check_grid(model, grid)
+    except ParameterError as exc:
+        raise _fail(path, f"grid.{exc.key}" if exc.key else "grid", exc.detail) from None
     outputs = _outputs(raw.get("output"), path)
     validation = _validation(raw.get("validation", {}), path)
     return Spec(path=path, sha256=sha256, model=model, grid=grid, wavelengths=wavelengths, outputs=outputs,
@@ -206,16 +209,6 @@ def _wavelengths(grid_cfg, model, path):
     return lam
 
 
-def _check_compatible(model, grid, path):
-    fold = getattr(grid, "phi_d_fold", "none")
-    if not model.isotropic and getattr(grid, "anisotropic", True) is False:
-        raise _fail(path, "grid", f"model '{model.name}' is anisotropic; use an anisotropic grid "
-                    "(type = 'rusinkiewicz', anisotropic = true) or a spherical grid")
-    if not model.reciprocal and "reciprocity" in fold:
-        raise _fail(path, "grid.phi_d_fold", f"model '{model.name}' is not reciprocal; folding phi_d by "
-                    "reciprocity would discard half of it (use phi_d_fold = 'none' or 'bilateral')")
-
-
 def _outputs(raw, path):
     from . import formats
 
@@ -237,10 +230,10 @@ def _outputs(raw, path):
             key = "format" if fmt_name is not None else "path"
             raise _fail(path, f"{where}.{key}", str(exc)) from None
         options = {k: v for k, v in item.items() if k not in ("path", "format")}
-        for k in options:
-            if k not in fmt.options:
-                raise _fail(path, f"{where}.{k}", f"unknown option for format {fmt.name}{suggest(k, fmt.options)}; "
-                            f"valid: {', '.join(fmt.options) or 'none'}")
+        try:
+            fmt.validate_options(options)
+        except ParameterError as exc:
+            raise _fail(path, f"{where}.{exc.key}", exc.detail) from None
         target = Path(item["path"])
         if not target.is_absolute():
             target = path.parent / target

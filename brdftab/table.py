@@ -31,7 +31,7 @@ from ._version import __version__
 from .brdf import BRDF
 from .channels import Layout
 from .errors import FormatError, ParameterError
-from .grids import Grid, grid_from_dataset
+from .grids import Grid, check_grid, grid_from_dataset
 
 __all__ = ["Table", "tabulate", "DEFAULT_CHUNK", "DIRECTION_CONVENTION", "PHI_CONVENTION"]
 
@@ -159,6 +159,7 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
     output array stays bounded. ``progress``: True/False, or None for a bar on a terminal
     only; the bar appears once a tabulation has run for 2 s.
     """
+    check_grid(brdf, grid)
     lam = brdf.layout.resolve(wavelengths)
     n = brdf.layout.n_out(lam)
     dtype = np.dtype(dtype)

@@ -125,7 +125,7 @@ def test_config_spherical_zoomed_around_specular():
     ({"type": "rusinkiewicz", "n_theta_h": 0}, "n_theta_h"),
     ({"type": "rusinkiewicz", "n_theta_h": 2.5}, "n_theta_h"),
     ({"type": "rusinkiewicz", "phi_d_fold": "mirror"}, "phi_d_fold"),
-    ({"type": "rusinkiewicz", "theta_h_deg": [0, 95]}, "theta_h"),
+    ({"type": "rusinkiewicz", "theta_h_deg": [0, 95]}, "theta_h_deg"),
     ({"type": "rusinkiewicz", "n_phi_h": 10}, "n_phi_h"),
     ({"type": "rusinkiewicz", "anisotropic": True, "phi_d_fold": "bilateral"}, "phi_d_fold"),
     ({"type": "spherical", "theta_i_deg": [0], "phi_i_deg": [0], "theta_o_deg": [0]}, "phi_o_deg"),

@@ -131,3 +131,21 @@ def test_table_eval_shapes():
     t = tabulate(GGX, RusinkiewiczGrid(6, 6, 6), progress=False)
     wi = normalize(np.ones((4, 5, 3)))
     assert t.eval(wi, wi).shape == (4, 5, 3)
+
+
+def test_anisotropic_model_on_isotropic_grid_is_refused():
+    from brdftab.errors import ParameterError
+
+    aniso = models.create("microfacet", alpha_x=0.1, alpha_y=0.4)
+    with pytest.raises(ParameterError, match="anisotropic"):
+        tabulate(aniso, RusinkiewiczGrid(8, 8, 16), progress=False)
+
+
+def test_long_eval_is_chunked_and_equal(monkeypatch):
+    import brdftab.brdf as brdf_module
+
+    wi, wo = random_pairs(1000, seed=9, max_theta=np.radians(95))  # some below the horizon
+    whole = GGX.eval(wi, wo)
+    monkeypatch.setattr(brdf_module, "EVAL_CHUNK", 7)
+    assert np.array_equal(GGX.eval(wi, wo), whole)
+    assert np.all(whole[wo[:, 2] <= 0] == 0)

@@ -38,6 +38,18 @@ class FileFormat:
     magic: tuple = ()
     options: dict = field(default_factory=dict)
     prepare: Callable | None = None
+    check_options: Callable | None = None
+
+    def validate_options(self, options: dict) -> None:
+        """Raise :class:`~brdftab.errors.ParameterError` naming a bad option or value."""
+        from ..errors import ParameterError
+
+        for key in options:
+            if key not in self.options:
+                raise ParameterError(key, f"unknown option for format {self.name}{suggest(key, self.options)}; "
+                                     f"valid: {', '.join(self.options) or 'none'}")
+        if self.check_options is not None:
+            self.check_options(**options)
 
 
 #: Registered formats by name.
@@ -103,11 +115,10 @@ def _default_prepare(brdf, grid):
 def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool = True, **options):
     """Write ``brdf`` to ``path`` atomically; returns the table written."""
     fmt = format_for(path, format)
-    unknown = set(options) - set(fmt.options)
-    if unknown:
-        bad = sorted(unknown)[0]
-        raise BrdftabError(f"unknown option {bad!r} for format {fmt.name}{suggest(bad, fmt.options)}; "
-                           f"valid: {', '.join(fmt.options) or 'none'}")
+    try:
+        fmt.validate_options(options)
+    except BrdftabError as exc:
+        raise BrdftabError(f"{path}: {exc}") from None
     table = (fmt.prepare or _default_prepare)(brdf, grid)
     with atomic_path(path, overwrite=overwrite) as tmp:
         fmt.write(table, tmp, **options)

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import xarray as xr
 
-from ..errors import FormatError
+from ..errors import FormatError, ParameterError
 from . import FileFormat, register
 
 __all__ = ["read_netcdf", "write_netcdf"]
@@ -30,11 +30,15 @@ def read_netcdf(path):
     return Table(ds)
 
 
-def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
+def check_options(dtype: str = "float64", complevel: int = 4):
     if dtype not in ("float32", "float64"):
-        raise FormatError(f"netcdf dtype must be 'float32' or 'float64', got {dtype!r}")
-    if not (isinstance(complevel, int) and 0 <= complevel <= 9):
-        raise FormatError(f"netcdf complevel must be a whole number 0..9, got {complevel!r}")
+        raise ParameterError("dtype", f"expected 'float32' or 'float64', got {dtype!r}")
+    if isinstance(complevel, bool) or not isinstance(complevel, int) or not 0 <= complevel <= 9:
+        raise ParameterError("complevel", f"expected a whole number 0..9, got {complevel!r}")
+
+
+def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
+    check_options(dtype, complevel)
     ds = table.ds
     encoding = {"brdf": {"dtype": np.dtype(dtype), "zlib": complevel > 0, "complevel": complevel,
                          "_FillValue": None}}
@@ -52,4 +56,5 @@ register(FileFormat(
     write=write_netcdf,
     magic=MAGIC,
     options={"dtype": "float64 (default) or float32", "complevel": "zlib level 0-9 (default 4)"},
+    check_options=check_options,
 ))

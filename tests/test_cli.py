@@ -1,0 +1,392 @@
+"""The ``brdftab`` command line end to end, and the README-style Python API.
+
+The shipped specs in ``specs/`` are tabulated into pytest's temporary folders (never into
+``specs/`` itself). Subprocesses run ``python -m brdftab`` with the interpreter running the
+tests; quick checks use ``click.testing.CliRunner``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+from click.testing import CliRunner
+
+import brdftab
+from brdftab.cli import main
+from brdftab.grids import merl_grid
+
+SPECS = Path(__file__).resolve().parent.parent / "specs"
+GGX_GOLD = SPECS / "ggx-gold.toml"
+LAMBERT_WHITE = SPECS / "lambert-white.toml"
+
+WI_DEG = (30.0, 0.0)
+WO_DEG = (30.0, 180.0)
+
+
+def _run(*args, cwd=None, timeout=120):
+    return subprocess.run([sys.executable, "-m", "brdftab", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, timeout=timeout)
+
+
+def _cli(*args):
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    return result
+
+
+def _vec(theta_deg, phi_deg):
+    t, p = math.radians(theta_deg), math.radians(phi_deg)
+    return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
+
+
+def _partials(folder: Path):
+    return sorted(p.name for p in folder.iterdir() if ".partial-" in p.name)
+
+
+@pytest.fixture(scope="module")
+def ggx_nc(tmp_path_factory):
+    """``brdftab tabulate specs/ggx-gold.toml --out TMP`` (a real subprocess), once per module."""
+    out = tmp_path_factory.mktemp("ggx-out")
+    proc = _run("tabulate", GGX_GOLD, "--out", out)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""
+    target = out / "ggx-gold.nc"
+    assert "wrote" in proc.stdout and "ggx-gold.nc" in proc.stdout
+    assert sorted(p.name for p in out.iterdir()) == ["ggx-gold.nc"]
+    return target
+
+
+# --------------------------------------------------------------------------------------------
+# tabulate + info + the netCDF layout
+
+def test_tabulate_writes_into_out_folder(ggx_nc):
+    assert ggx_nc.is_file() and ggx_nc.stat().st_size > 0
+    with open(ggx_nc, "rb") as fh:
+        assert fh.read(8) == b"\x89HDF\r\n\x1a\n"  # netCDF-4 (HDF5) signature
+
+
+def test_info_describes_table(ggx_nc):
+    proc = _run("info", ggx_nc)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""
+    text = proc.stdout
+    assert "grid:" in text and "merl" in text
+    for axis in ("theta_h", "theta_d", "phi_d"):
+        assert axis in text
+    assert "R, G, B" in text
+    assert "microfacet" in text
+
+
+def test_info_json(ggx_nc):
+    result = _cli("info", ggx_nc, "--json")
+    assert result.exit_code == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data["channels"] == ["R", "G", "B"]
+    assert [a["name"] for a in data["axes"]] == ["theta_h", "theta_d", "phi_d"]
+    assert [a["size"] for a in data["axes"]] == [90, 90, 180]
+    assert data["attributes"]["model"] == "microfacet"
+    assert data["nonfinite"] == 0 and data["negative"] == 0
+    assert data["min"] >= 0.0 and data["max"] > 0.0
+
+
+def test_netcdf_layout_and_provenance(ggx_nc):
+    with xr.open_dataset(ggx_nc) as ds:
+        ds = ds.load()
+    assert "brdf" in ds.data_vars
+    assert ds["brdf"].attrs["units"] == "sr-1"
+    assert ds["brdf"].dims == ("theta_h", "theta_d", "phi_d", "channel")
+    assert ds["brdf"].shape == (90, 90, 180, 3)
+    assert ds["brdf"].dtype == np.float32  # the spec asks for dtype = "float32"
+    for name in ("theta_h", "theta_d", "phi_d"):
+        assert name in ds.coords
+        assert ds[name].attrs["units"] == "rad"
+    assert "channel" in ds.coords
+    assert [str(c) for c in ds["channel"].values] == ["R", "G", "B"]
+
+    attrs = ds.attrs
+    assert attrs["parameterization"] == "rusinkiewicz"
+    assert attrs["sample_position"] == "bin-centre"
+    assert attrs["phi_d_fold"] == "reciprocity"
+    assert attrs["model"] == "microfacet"
+    params = json.loads(attrs["parameters"])
+    assert params["alpha"] == pytest.approx(0.2)
+    assert params["fresnel"] == "conductor"
+    assert attrs["spec_sha256"] == hashlib.sha256(GGX_GOLD.read_bytes()).hexdigest()
+    assert attrs["brdftab_version"] == brdftab.__version__
+    assert attrs["created"]
+    assert "T" in attrs["created"]  # ISO 8601 timestamp
+
+    v = ds["brdf"].values
+    assert np.all(np.isfinite(v)) and np.all(v >= 0) and v.max() > 0
+
+
+def test_tabulate_refuses_existing_then_overwrites(ggx_nc):
+    out = ggx_nc.parent
+    before_bytes = ggx_nc.read_bytes()
+    before = ggx_nc.stat()
+
+    proc = _run("tabulate", GGX_GOLD, "--out", out)
+    assert proc.returncode == 2
+    lines = proc.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("brdftab: error: "), proc.stderr
+    assert "ggx-gold.nc" in lines[0] and "--overwrite" in lines[0]
+    assert "Traceback" not in proc.stderr
+    assert proc.stdout == ""
+    after = ggx_nc.stat()
+    assert ggx_nc.read_bytes() == before_bytes
+    assert (after.st_mtime_ns, after.st_ino, after.st_size) == (before.st_mtime_ns, before.st_ino, before.st_size)
+
+    result = _cli("tabulate", GGX_GOLD, "--out", out, "--overwrite")
+    assert result.exit_code == 0, result.stderr
+    assert "wrote" in result.stdout
+    assert ggx_nc.stat().st_ino != before.st_ino  # replaced (atomically, by rename)
+    assert sorted(p.name for p in out.iterdir()) == ["ggx-gold.nc"]
+    with xr.open_dataset(ggx_nc) as ds:
+        assert ds["brdf"].shape == (90, 90, 180, 3)
+
+
+# --------------------------------------------------------------------------------------------
+# An interrupted or killed run leaves no partial output
+
+BIG_SPEC = """\
+description = "a grid large enough that the tabulation runs for several seconds"
+
+[model]
+name = "sum"
+
+[[model.terms]]
+name = "lambert"
+albedo = 0.5
+
+[[model.terms]]
+name = "microfacet"
+alpha = 0.3
+
+[grid]
+type = "rusinkiewicz"
+n_theta_h = 400
+n_theta_d = 400
+n_phi_d = {n_phi_d}
+
+[[output]]
+path = "big.nc"
+"""
+
+
+def _interrupt_run(tmp_path: Path, sig) -> subprocess.CompletedProcess:
+    """Start a long tabulation, send ``sig`` mid-run; enlarge the grid if it ended too early."""
+    spec = tmp_path / "big.toml"
+    target = tmp_path / "big.nc"
+    n_phi_d, wait = 360, 1.5
+    for _attempt in range(5):
+        spec.write_text(BIG_SPEC.format(n_phi_d=n_phi_d))
+        proc = subprocess.Popen([sys.executable, "-m", "brdftab", "tabulate", spec.name, "--no-progress"],
+                                cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            time.sleep(wait)
+            if proc.poll() is not None:  # finished before the signal: the run was too short
+                proc.communicate()
+                target.unlink(missing_ok=True)
+                n_phi_d *= 2
+                continue
+            proc.send_signal(sig)
+            out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+        if sig == signal.SIGTERM and proc.returncode == -signal.SIGTERM:
+            # Terminated while still starting up (before the handler was installed): wait longer.
+            wait += 1.0
+            continue
+        return subprocess.CompletedProcess(proc.args, proc.returncode, out, err)
+    pytest.fail("could not signal the tabulation while it was running")
+
+
+def test_sigterm_leaves_no_partial_file(tmp_path):
+    proc = _interrupt_run(tmp_path, signal.SIGTERM)
+    assert proc.returncode == 130, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr
+    assert len(proc.stderr.splitlines()) == 1 and "interrupted" in proc.stderr
+    assert not (tmp_path / "big.nc").exists()
+    assert _partials(tmp_path) == []
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.toml"]
+
+
+def test_sigkill_leaves_no_target_file(tmp_path):
+    proc = _interrupt_run(tmp_path, signal.SIGKILL)
+    assert proc.returncode == -signal.SIGKILL
+    assert not (tmp_path / "big.nc").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# eval
+
+def _in_process(source):
+    return brdftab.from_spec(source).eval(_vec(*WI_DEG), _vec(*WO_DEG))
+
+
+def test_eval_spec_prints_channels_matching_api():
+    proc = _run("eval", GGX_GOLD, "--wi-deg", "30,0", "--wo-deg", "30,180")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""
+    lines = proc.stdout.splitlines()
+    assert len(lines) == 3
+    values = {}
+    for line in lines:
+        name, value = line.split()
+        values[name] = float(value)
+    assert list(values) == ["R", "G", "B"]
+    assert all(v > 0 for v in values.values())
+    expected = _in_process(GGX_GOLD)
+    np.testing.assert_allclose([values[c] for c in "RGB"], expected, rtol=1e-8)
+
+
+def test_eval_spec_json_matches_api():
+    result = _cli("eval", GGX_GOLD, "--wi-deg", "30,0", "--wo-deg", "30,180", "--json")
+    assert result.exit_code == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data["model"] == "microfacet"
+    assert data["units"] == "sr-1"
+    assert data["wi_deg"] == [30.0, 0.0] and data["wo_deg"] == [30.0, 180.0]
+    assert list(data["channels"]) == ["R", "G", "B"]
+    np.testing.assert_allclose([data["channels"][c] for c in "RGB"], _in_process(GGX_GOLD), rtol=1e-12)
+
+
+def test_eval_table_agrees_with_spec(ggx_nc):
+    result = _cli("eval", ggx_nc, "--wi-deg", "30,0", "--wo-deg", "30,180", "--json")
+    assert result.exit_code == 0, result.stderr
+    table_values = [json.loads(result.stdout)["channels"][c] for c in "RGB"]
+    np.testing.assert_allclose(table_values, _in_process(GGX_GOLD), rtol=0.01)
+
+
+# --------------------------------------------------------------------------------------------
+# models, --version
+
+def test_models_lists_models():
+    result = _cli("models")
+    assert result.exit_code == 0, result.stderr
+    names = [line.split()[0] for line in result.stdout.splitlines() if line.strip()]
+    assert "lambert" in names and "microfacet" in names
+
+
+def test_models_json():
+    result = _cli("models", "--json")
+    assert result.exit_code == 0
+    data = json.loads(result.stdout)
+    assert {"lambert", "microfacet"} <= set(data)
+
+
+def test_models_microfacet_details():
+    result = _cli("models", "microfacet")
+    assert result.exit_code == 0, result.stderr
+    text = result.stdout
+    for word in ("alpha", "distribution", "fresnel", "ggx", "beckmann", "conductor"):
+        assert word in text
+    assert "reference:" in text and "Cook" in text
+
+
+def test_version():
+    proc = _run("--version")
+    assert proc.returncode == 0
+    assert brdftab.__version__ in proc.stdout
+    result = _cli("--version")
+    assert result.exit_code == 0 and brdftab.__version__ in result.stdout
+
+
+def test_console_script_version():
+    exe = Path(sys.executable).parent / "brdftab"
+    if not exe.exists():
+        exe = shutil.which("brdftab")
+    assert exe, "the brdftab console script is not installed"
+    proc = subprocess.run([str(exe), "--version"], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    assert brdftab.__version__ in proc.stdout
+
+
+# --------------------------------------------------------------------------------------------
+# README-style Python API
+
+def test_python_api_round_trip(tmp_path):
+    brdf = brdftab.from_spec(GGX_GOLD)
+    assert brdf.name == "microfacet" and brdf.channels == ("R", "G", "B")
+
+    model = brdftab.models.create("microfacet", distribution="ggx", alpha=0.3, fresnel="schlick",
+                                  f0=[0.9, 0.6, 0.3])
+    path = tmp_path / "api.nc"
+    grid = brdftab.grids.merl_grid()
+    brdftab.save(model, path, grid=grid)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["api.nc"]
+
+    table = brdftab.open(path)
+    assert isinstance(table, brdftab.Table) and isinstance(table, brdftab.BRDF)
+    assert table.grid.equals(merl_grid())
+    assert table.channels == ("R", "G", "B")
+    assert table.name == "microfacet"
+    assert table.parameters["alpha"] == pytest.approx(0.3)
+    assert table.values.dtype == np.float64
+
+    wi, wo = grid.directions()
+    expected = model.eval(wi, wo).reshape(table.values.shape)
+    np.testing.assert_allclose(table.values, expected, rtol=1e-12, atol=0)
+
+    # At its own nodes a table returns the stored values.
+    rng = np.random.default_rng(1)
+    flat = rng.choice(grid.size, 2000, replace=False)
+    wi_n, wo_n = grid.directions()
+    got = table.eval(wi_n[flat], wo_n[flat])
+    np.testing.assert_allclose(got, table.values.reshape(-1, 3)[flat], rtol=1e-9, atol=1e-12)
+
+    # Between nodes it interpolates close to the model.
+    f_table = table.eval(_vec(*WI_DEG), _vec(*WO_DEG))
+    np.testing.assert_allclose(f_table, model.eval(_vec(*WI_DEG), _vec(*WO_DEG)), rtol=0.01)
+
+    # A table saved without a grid is written as it is.
+    copy = tmp_path / "copy.nc"
+    brdftab.save(table, copy)
+    np.testing.assert_array_equal(brdftab.open(copy).values, table.values)
+
+
+def test_lambert_white_is_constant(tmp_path):
+    result = _cli("tabulate", LAMBERT_WHITE, "--out", tmp_path)
+    assert result.exit_code == 0, result.stderr
+    target = tmp_path / "lambert-white.nc"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["lambert-white.nc"]
+    with xr.open_dataset(target) as ds:
+        ds = ds.load()
+    v = ds["brdf"].values
+    assert v.shape == (90, 90, 180, 1)
+    assert [str(c) for c in ds["channel"].values] == ["mono"]
+    # Every sample with both directions above the horizon is exactly albedo / pi. The
+    # Rusinkiewicz/MERL grid also holds pairs with wi or wo below the horizon
+    # (theta_h + theta_d > 90 deg); by the BRDF protocol those are stored as 0.
+    wi, wo = merl_grid().directions()
+    above = ((wi[:, 2] > 0) & (wo[:, 2] > 0)).reshape(v.shape[:-1])
+    assert above.any() and (~above).any()
+    assert np.all(v[above] == 0.99 / np.pi)
+    assert np.all(v[~above] == 0.0)
+    assert ds.attrs["model"] == "lambert"
+    assert json.loads(ds.attrs["parameters"])["albedo"] == pytest.approx(0.99)
+
+
+def test_lambert_default_albedo(tmp_path):
+    # albedo is documented with default 1.0 (brdftab models lambert); leaving it out must work.
+    model = brdftab.models.create("lambert")
+    np.testing.assert_allclose(model.eval(_vec(*WI_DEG), _vec(*WO_DEG)), [1.0 / np.pi])
+    spec = tmp_path / "lambert-default.toml"
+    spec.write_text('[model]\nname = "lambert"\n\n[grid]\ntype = "merl"\n\n[[output]]\npath = "x.nc"\n')
+    result = _cli("eval", spec, "--wi-deg", "30,0", "--wo-deg", "30,180", "--json")
+    assert result.exit_code == 0, result.stderr
+    assert json.loads(result.stdout)["channels"]["mono"] == pytest.approx(1.0 / np.pi)

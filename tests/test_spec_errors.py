@@ -1,0 +1,286 @@
+"""Bad input on the command line: exit code 2, exactly one line on stderr, no traceback.
+
+Every spec-file error names the spec file and the offending key; nothing is written.
+Spec files are written into pytest's ``tmp_path``; the real CLI runs in-process through
+``click.testing.CliRunner`` (stderr separated, click >= 8.2) and, for a subset, as a
+subprocess (``python -m brdftab``) to prove that the process itself prints one line and no
+traceback.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from click.testing import CliRunner
+
+from brdftab.cli import main
+
+SPECS = Path(__file__).resolve().parent.parent / "specs"
+GGX_GOLD = SPECS / "ggx-gold.toml"
+
+# A valid spec, in sections; each case replaces one section (or appends text).
+BASE = {
+    "top": 'description = "a spec with one mistake"\n',
+    "model": '[model]\nname = "lambert"\nalbedo = 0.5\n',
+    # A tiny grid, so that a case which wrongly passes validation still finishes fast.
+    "grid": '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 2\nn_theta_d = 2\nn_phi_d = 2\n',
+    "output": '[[output]]\npath = "out.nc"\n',
+    "extra": "",
+}
+
+
+def _spec_text(**override) -> str:
+    parts = dict(BASE, **override)
+    return "".join(parts[k] for k in ("top", "model", "grid", "output", "extra"))
+
+
+def _microfacet(body: str) -> str:
+    return '[model]\nname = "microfacet"\n' + body
+
+
+def _rusi(body: str) -> str:
+    return '[grid]\ntype = "rusinkiewicz"\n' + body
+
+
+# id -> (spec text or bytes, substrings the one error line must contain)
+CASES = {
+    # unknown keys and names
+    "unknown-top-level-key": (_spec_text(top="colour = 3\n"), ["colour", "top-level"]),
+    "unknown-model-key-alpah": (
+        _spec_text(model=_microfacet("alpah = 0.3\n")),
+        ["model.alpah", "did you mean 'alpha'"],
+    ),
+    "unknown-model-name": (
+        _spec_text(model='[model]\nname = "microfacett"\nalpha = 0.3\n'),
+        ["model.name", "microfacett", "did you mean 'microfacet'", "lambert", "microfacet", "sum", "scale"],
+    ),
+    # missing required parameters
+    "microfacet-without-alpha": (_spec_text(model=_microfacet('distribution = "ggx"\n')), ["model.alpha"]),
+    "conductor-without-k": (
+        _spec_text(model=_microfacet('alpha = 0.3\nfresnel = "conductor"\nn = 0.2\n')),
+        ["model.k", "conductor"],
+    ),
+    # mistyped values
+    "alpha-string": (_spec_text(model=_microfacet('alpha = "rough"\n')), ["model.alpha", "rough"]),
+    "albedo-bool": (_spec_text(model='[model]\nname = "lambert"\nalbedo = true\n'), ["model.albedo"]),
+    "n-string": (
+        _spec_text(model=_microfacet('alpha = 0.3\nfresnel = "dielectric"\nn = "gold"\n')),
+        ["model.n"],
+    ),
+    # out of range
+    "alpha-zero": (_spec_text(model=_microfacet("alpha = 0\n")), ["model.alpha", "> 0"]),
+    "alpha-negative": (_spec_text(model=_microfacet("alpha = -0.1\n")), ["model.alpha", "-0.1"]),
+    "albedo-negative": (_spec_text(model='[model]\nname = "lambert"\nalbedo = -0.2\n'), ["model.albedo", "-0.2"]),
+    "albedo-above-one": (_spec_text(model='[model]\nname = "lambert"\nalbedo = 1.5\n'), ["model.albedo", "1.5"]),
+    "n-zero": (
+        _spec_text(model=_microfacet('alpha = 0.3\nfresnel = "dielectric"\nn = 0\n')),
+        ["model.n", "> 0"],
+    ),
+    "k-negative": (
+        _spec_text(model=_microfacet('alpha = 0.3\nfresnel = "conductor"\nn = 0.2\nk = -1\n')),
+        ["model.k", ">= 0"],
+    ),
+    # a parameter the chosen fresnel does not use
+    "k-with-dielectric": (
+        _spec_text(model=_microfacet('alpha = 0.3\nfresnel = "dielectric"\nn = 1.5\nk = 1\n')),
+        ["model.k", "dielectric"],
+    ),
+    # [grid]
+    "unknown-grid-type": (_spec_text(grid='[grid]\ntype = "merll"\n'), ["grid.type", "merll", "did you mean 'merl'"]),
+    "unknown-grid-key": (_spec_text(grid=_rusi("n_thetah = 4\n")), ["grid.n_thetah", "did you mean 'n_theta_h'"]),
+    "unknown-merl-grid-key": (_spec_text(grid='[grid]\ntype = "merl"\nn_theta_h = 4\n'), ["grid.n_theta_h"]),
+    "n-theta-h-zero": (_spec_text(grid=_rusi("n_theta_h = 0\n")), ["grid.n_theta_h"]),
+    "phi-d-fold-foo": (_spec_text(grid=_rusi('phi_d_fold = "foo"\n')), ["grid.phi_d_fold", "foo"]),
+    # The spec key is theta_h_deg; the message must name that key, not an internal axis name.
+    "theta-h-deg-out-of-range": (_spec_text(grid=_rusi("theta_h_deg = [0, 45, 100]\n")), ["grid.theta_h_deg"]),
+    # missing sections
+    "missing-model": (_spec_text(model=""), ["[model]", "missing"]),
+    "missing-grid": (_spec_text(grid=""), ["[grid]", "missing"]),
+    "missing-output": (_spec_text(output=""), ["[[output]]", "missing"]),
+    # [[output]]
+    "unknown-output-extension": (
+        _spec_text(output='[[output]]\npath = "out.xyz"\n'),
+        ["output[0].path", ".xyz"],
+    ),
+    "unknown-output-option": (
+        _spec_text(output='[[output]]\npath = "out.nc"\ncompression = 4\n'),
+        ["output[0].compression"],
+    ),
+    # A bad value of a known output option must be refused like any other spec error:
+    # naming the spec file and the key (and before the tabulation runs).
+    "bad-output-dtype": (
+        _spec_text(output='[[output]]\npath = "out.nc"\ndtype = "float16"\n'),
+        ["output[0].dtype", "float16"],
+    ),
+    # file level
+    "invalid-toml": (_spec_text(extra="this is = = not toml\n"), ["invalid TOML", "line"]),
+    "not-utf8": (_spec_text().replace("a spec with one mistake", "caf\udce9").encode("utf-8", "surrogateescape"),
+                 ["UTF-8"]),
+    # [validation]
+    "validation-unknown-key": (
+        _spec_text(extra="[validation]\nallow_invalids = true\n"),
+        ["validation.allow_invalids", "did you mean 'allow_invalid'"],
+    ),
+}
+
+#: Cases also run as a real subprocess (one line on stderr, no traceback).
+SUBPROCESS_CASES = ["unknown-top-level-key", "unknown-model-name", "alpha-string", "theta-h-deg-out-of-range",
+                    "invalid-toml", "not-utf8", "missing-output"]
+
+
+def _write_spec(tmp_path: Path, case_id: str) -> Path:
+    content, _ = CASES[case_id]
+    spec = tmp_path / f"{case_id}.toml"
+    if isinstance(content, bytes):
+        spec.write_bytes(content)
+    else:
+        spec.write_text(content, encoding="utf-8")
+    return spec
+
+
+def _assert_one_error_line(stderr: str, code: int, *expected: str) -> str:
+    assert code == 2, f"exit code {code}, stderr: {stderr!r}"
+    assert "Traceback" not in stderr, stderr
+    lines = stderr.splitlines()
+    assert len(lines) == 1, f"expected one line on stderr, got {len(lines)}: {stderr!r}"
+    line = lines[0]
+    assert line.strip(), "empty error line"
+    assert line.startswith("brdftab: error: "), line
+    for text in expected:
+        assert text in line, f"{text!r} missing from error line {line!r}"
+    return line
+
+
+def _assert_nothing_written(folder: Path, keep: set):
+    left = sorted(p.name for p in folder.iterdir() if p.name not in keep)
+    assert left == [], f"files left behind: {left}"
+
+
+def _cli(args):
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    assert result.exception is None or isinstance(result.exception, SystemExit), (
+        f"exception escaped the CLI: {result.exception!r}")
+    return result
+
+
+def _subprocess(args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "brdftab", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, timeout=120)
+
+
+# --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("case_id", list(CASES))
+def test_spec_error_in_process(tmp_path, case_id):
+    spec = _write_spec(tmp_path, case_id)
+    result = _cli(["tabulate", spec])
+    _assert_one_error_line(result.stderr, result.exit_code, spec.name, *CASES[case_id][1])
+    assert result.stdout == ""
+    _assert_nothing_written(tmp_path, {spec.name})
+
+
+@pytest.mark.parametrize("case_id", SUBPROCESS_CASES)
+def test_spec_error_subprocess(tmp_path, case_id):
+    spec = _write_spec(tmp_path, case_id)
+    proc = _subprocess(["tabulate", spec.name], cwd=tmp_path)
+    _assert_one_error_line(proc.stderr, proc.returncode, spec.name, *CASES[case_id][1])
+    assert proc.stdout == ""
+    _assert_nothing_written(tmp_path, {spec.name})
+
+
+def test_spec_error_with_out_folder_writes_nothing(tmp_path):
+    spec = _write_spec(tmp_path, "alpha-negative")
+    out = tmp_path / "out"
+    out.mkdir()
+    result = _cli(["tabulate", spec, "--out", out])
+    _assert_one_error_line(result.stderr, result.exit_code, spec.name, "model.alpha")
+    assert list(out.iterdir()) == []
+
+
+def test_nonexistent_spec_file(tmp_path):
+    spec = tmp_path / "no-such-spec.toml"
+    proc = _subprocess(["tabulate", spec])
+    _assert_one_error_line(proc.stderr, proc.returncode, spec.name)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("verb", ["tabulate", "eval"])
+def test_spec_error_same_for_every_verb_reading_specs(tmp_path, verb):
+    spec = _write_spec(tmp_path, "unknown-model-key-alpah")
+    args = [verb, spec] + (["--wi-deg", "30,0", "--wo-deg", "30,180"] if verb == "eval" else [])
+    result = _cli(args)
+    _assert_one_error_line(result.stderr, result.exit_code, spec.name, "model.alpah", "did you mean 'alpha'")
+
+
+# --------------------------------------------------------------------------------------------
+# Errors in command-line arguments that brdftab itself checks.
+
+@pytest.mark.parametrize("value, expected", [
+    ("30", ["--wi-deg", "'30'", "theta,phi"]),
+    ("100,0", ["--wi-deg", "[0, 90]", "100"]),
+    ("a,b", ["--wi-deg", "'a,b'"]),
+    ("30,0,0", ["--wi-deg", "'30,0,0'"]),
+    ("nan,0", ["--wi-deg", "'nan,0'"]),
+])
+def test_eval_bad_direction(value, expected):
+    result = _cli(["eval", GGX_GOLD, "--wi-deg", value, "--wo-deg", "30,180"])
+    _assert_one_error_line(result.stderr, result.exit_code, *expected)
+    assert result.stdout == ""
+
+
+def test_eval_bad_wo_direction_names_wo():
+    result = _cli(["eval", GGX_GOLD, "--wi-deg", "30,0", "--wo-deg", "-5,180"])
+    _assert_one_error_line(result.stderr, result.exit_code, "--wo-deg", "[0, 90]")
+
+
+@pytest.mark.parametrize("value", ["a,b", "100,0"])
+def test_eval_bad_direction_subprocess(value):
+    proc = _subprocess(["eval", GGX_GOLD, "--wi-deg", value, "--wo-deg", "30,180"])
+    _assert_one_error_line(proc.stderr, proc.returncode, "--wi-deg")
+    assert proc.stdout == ""
+
+
+def test_info_nonexistent_file(tmp_path):
+    path = tmp_path / "missing-table.nc"
+    result = _cli(["info", path])
+    _assert_one_error_line(result.stderr, result.exit_code, path.name)
+    assert not path.exists()
+
+
+def test_info_garbage_netcdf(tmp_path):
+    path = tmp_path / "garbage.nc"
+    path.write_bytes(b"this is not a netCDF file\n" * 20)
+    proc = _subprocess(["info", path])
+    _assert_one_error_line(proc.stderr, proc.returncode, path.name)
+    assert proc.stdout == ""
+
+
+def test_eval_garbage_netcdf(tmp_path):
+    path = tmp_path / "garbage.nc"
+    path.write_bytes(b"\x00\x01 definitely not netCDF" * 10)
+    result = _cli(["eval", path, "--wi-deg", "30,0", "--wo-deg", "30,180"])
+    _assert_one_error_line(result.stderr, result.exit_code, path.name)
+
+
+@pytest.mark.parametrize("name, expected", [
+    ("nosuchmodel", ["nosuchmodel", "lambert", "microfacet"]),
+    ("microfacett", ["microfacett", "did you mean 'microfacet'"]),
+])
+def test_models_unknown_name(name, expected):
+    result = _cli(["models", name])
+    _assert_one_error_line(result.stderr, result.exit_code, *expected)
+    assert result.stdout == ""
+
+
+def test_models_unknown_name_subprocess():
+    proc = _subprocess(["models", "nosuchmodel"])
+    _assert_one_error_line(proc.stderr, proc.returncode, "nosuchmodel", "lambert", "microfacet")
+
+
+def test_tabulate_out_folder_missing(tmp_path):
+    missing = tmp_path / "no-such-folder"
+    result = _cli(["tabulate", GGX_GOLD, "--out", missing])
+    _assert_one_error_line(result.stderr, result.exit_code, "--out", missing.name)
+    assert not missing.exists()
