@@ -79,8 +79,11 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, progress):
     if out_dir is not None and not out_dir.is_dir():
         raise BrdftabError(f"--out {out_dir}: no such folder")
     result = run(s, out_dir=out_dir, overwrite=overwrite, allow_invalid=allow_invalid, progress=progress)
+    t = result.table
+    what = (f"{len(t.wavelengths)} wavelengths" if t.spectral
+            else f"channel{'s' if len(t.channels) > 1 else ''} {', '.join(t.channels)}")
     for path in result.written:
-        click.echo(f"wrote {path} ({result.table.grid.describe()}, {len(result.table.layout.channels or result.table.wavelengths)} channels)")
+        click.echo(f"wrote {path} ({t.grid.describe()}, {what})")
     if not result.report.passed:
         click.echo(f"brdftab: warning: written despite failed checks: {result.report.summary()}", err=True)
 
