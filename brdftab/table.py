@@ -37,6 +37,8 @@ __all__ = ["Table", "tabulate", "DEFAULT_CHUNK", "DIRECTION_CONVENTION", "PHI_CO
 
 #: Samples evaluated per chunk; bounds the temporaries of a tabulation (~tens of MB).
 DEFAULT_CHUNK = 1 << 16
+#: Seconds a tabulation runs before its progress bar appears.
+PROGRESS_DELAY = 2.0
 
 DIRECTION_CONVENTION = ("wi and wo are unit vectors pointing away from the surface in a local frame with the "
                         "normal along +z; theta is the polar angle from +z, phi the azimuth from +x towards +y")
@@ -227,5 +229,5 @@ def _progress(total: int, progress: bool | None):
         return None
     from tqdm.auto import tqdm
 
-    return tqdm(total=total, unit="sample", unit_scale=True, desc="tabulating", delay=2.0,
+    return tqdm(total=total, unit="sample", unit_scale=True, desc="tabulating", delay=PROGRESS_DELAY,
                 disable=None if progress is None else False, leave=False)

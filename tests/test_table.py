@@ -149,3 +149,13 @@ def test_long_eval_is_chunked_and_equal(monkeypatch):
     monkeypatch.setattr(brdf_module, "EVAL_CHUNK", 7)
     assert np.array_equal(GGX.eval(wi, wo), whole)
     assert np.all(whole[wo[:, 2] <= 0] == 0)
+
+
+def test_progress_bar_shown_only_when_asked(monkeypatch, capsys):
+    import brdftab.table as table_module
+
+    monkeypatch.setattr(table_module, "PROGRESS_DELAY", 0.0)
+    tabulate(GGX, RusinkiewiczGrid(8, 8, 8), chunk_size=64, progress=True)
+    assert "tabulating" in capsys.readouterr().err
+    tabulate(GGX, RusinkiewiczGrid(8, 8, 8), chunk_size=64, progress=False)
+    assert capsys.readouterr().err == ""
