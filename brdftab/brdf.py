@@ -3,8 +3,9 @@
 ``brdf.eval(wi, wo, wavelengths=None)`` takes unit direction vectors ``wi``, ``wo`` of any
 broadcastable leading shape (trailing axis 3; pointing away from the surface; normal +z) and
 returns ``ndarray[..., n_channels]``. The result is 0 wherever either direction is at or below
-the horizon. Analytic models (:mod:`brdftab.models`) and tables (:class:`brdftab.table.Table`)
-are both :class:`BRDF` objects.
+the horizon (z <= ``HORIZON`` = 1e-12, so θ = 90° exactly counts as the horizon). Analytic
+models (:mod:`brdftab.models`) and tables (:class:`brdftab.table.Table`) are both
+:class:`BRDF` objects.
 
 Metadata every BRDF carries:
 
@@ -27,6 +28,9 @@ __all__ = ["BRDF", "Model", "EVAL_CHUNK"]
 
 #: Direction pairs evaluated at once by :meth:`BRDF.eval`.
 EVAL_CHUNK = 1 << 16
+#: Directions with z at or below this are on or below the horizon (f = 0). ``sph_to_vec(π/2, φ)``
+#: has z ≈ 6e-17, not 0; without the margin a grazing node would be evaluated with cosθ ≈ 1e-17.
+HORIZON = 1e-12
 
 
 class BRDF:
@@ -68,7 +72,7 @@ class BRDF:
         wi = wi.reshape(-1, 3)
         wo = wo.reshape(-1, 3)
         out = np.zeros((wi.shape[0], n))
-        above = np.flatnonzero((wi[:, 2] > 0) & (wo[:, 2] > 0))
+        above = np.flatnonzero((wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
         # Bounded chunks keep the temporaries of long evaluations to a few tens of MB.
         for start in range(0, above.size, EVAL_CHUNK):
             sel = above[start:start + EVAL_CHUNK]

@@ -84,7 +84,15 @@ def combine_layouts(layouts) -> Layout:
         )
     if spectral:
         wl = [l.wavelengths for l in spectral if l.wavelengths is not None]
-        return Layout(None, np.unique(np.concatenate(wl)) if wl else None)
+        if not wl:
+            return Layout(None, None)
+        # every term is defined only over its own range: keep the common range
+        lo = max(w[0] for w in wl)
+        hi = min(w[-1] for w in wl)
+        if lo > hi:
+            raise ParameterError("wavelengths", "the spectral parameters share no common wavelength range")
+        union = np.unique(np.concatenate(wl))
+        return Layout(None, union[(union >= lo) & (union <= hi)])
     if named:
         first = named[0].channels
         for l in named[1:]:
@@ -118,6 +126,8 @@ class ChannelValue:
             arr = np.asarray(values, float)
             if wl.ndim != 1 or arr.shape != wl.shape or wl.size == 0:
                 raise ValueError("wavelengths_nm and values must be lists of the same length")
+            if not np.all(np.isfinite(wl)):
+                raise ValueError("wavelengths_nm must be finite")
             if np.any(np.diff(wl) <= 0):
                 raise ValueError("wavelengths_nm must increase strictly")
             if np.any(wl <= 0):
@@ -135,10 +145,12 @@ class ChannelValue:
             if extra or "wavelengths_nm" not in raw or "values" not in raw:
                 raise ValueError("a spectrum needs exactly the keys wavelengths_nm and values")
             return cls(_numbers(raw["values"]), _numbers(raw["wavelengths_nm"]))
-        if isinstance(raw, bool):
-            raise ValueError("expected a number, not a boolean")
+        if isinstance(raw, bool) or np.iscomplexobj(raw):
+            raise ValueError("expected real numbers")
+        if isinstance(raw, np.ndarray) and raw.ndim == 0:
+            raw = raw.item()
         if isinstance(raw, (int, float, np.number)):
-            return cls(float(raw))
+            return cls(_real(raw))
         if isinstance(raw, (list, tuple, np.ndarray)):
             return cls(_numbers(raw))
         raise ValueError(f"expected a number, a list of numbers or a spectrum, got {type(raw).__name__}")
@@ -184,12 +196,16 @@ class ChannelValue:
         return f"ChannelValue({self.to_json()!r})"
 
 
+def _real(x) -> float:
+    if isinstance(x, bool) or not isinstance(x, (int, float, np.number)) or np.iscomplexobj(x):
+        raise ValueError("expected a list of numbers")
+    try:
+        return float(x)
+    except OverflowError:
+        raise ValueError("number too large") from None
+
+
 def _numbers(seq):
     if isinstance(seq, (str, bytes, dict)) or not hasattr(seq, "__len__"):
         raise ValueError("expected a list of numbers")
-    out = []
-    for x in seq:
-        if isinstance(x, bool) or not isinstance(x, (int, float, np.number)):
-            raise ValueError("expected a list of numbers")
-        out.append(float(x))
-    return out
+    return [_real(x) for x in seq]

@@ -39,6 +39,11 @@ class _Group(click.Group):
         except KeyboardInterrupt:
             click.echo("brdftab: interrupted; no output written", err=True)
             ctx.exit(130)
+        except MemoryError:
+            if debug:
+                raise
+            click.echo("brdftab: error: out of memory; use a coarser grid or fewer channels", err=True)
+            ctx.exit(2)
         except (click.exceptions.Exit, click.ClickException, click.Abort, SystemExit):
             raise
         except Exception as exc:  # a bug: still one line, with a pointer to --debug
@@ -80,7 +85,7 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, progress):
         raise BrdftabError(f"--out {out_dir}: no such folder")
     result = run(s, out_dir=out_dir, overwrite=overwrite, allow_invalid=allow_invalid, progress=progress)
     t = result.table
-    what = (f"{len(t.wavelengths)} wavelengths" if t.spectral
+    what = (f"{len(t.wavelengths)} wavelength{'s' if len(t.wavelengths) > 1 else ''}" if t.spectral
             else f"channel{'s' if len(t.channels) > 1 else ''} {', '.join(t.channels)}")
     for path in result.written:
         click.echo(f"wrote {path} ({t.grid.describe()}, {what})")

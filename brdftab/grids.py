@@ -37,6 +37,7 @@ the axis range, ``lower-edge`` at its lower edge; explicit values are used as gi
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,13 +94,17 @@ class Axis:
     """One grid axis: node coordinates [rad], an optional warp, an optional period.
 
     ``warp = "sqrt"`` means the axis is uniform in ``u = sqrt(x / (π/2))`` (MERL θh);
-    interpolation between nodes is linear in the warped coordinate.
+    interpolation between nodes is linear in the warped coordinate. ``period`` makes the axis
+    periodic (interpolation runs across the seam). ``wrap`` marks an angle axis that does not
+    cover its circle: queries are reduced modulo ``wrap`` and those in the uncovered gap go
+    to the nearer end node.
     """
 
     name: str
     values: np.ndarray
     warp: str = "linear"
     period: float | None = None
+    wrap: float | None = None
 
     def __post_init__(self):
         v = np.asarray(self.values, float)
@@ -117,10 +122,28 @@ class Axis:
     def _t(self, x):
         return np.sqrt(np.maximum(x, 0.0) / HALF_PI) if self.warp == "sqrt" else x
 
+    def reduce(self, x):
+        """Angles reduced into [v0, v0 + wrap) for a wrapped axis; gap values go to the nearer end."""
+        if self.wrap is None or self.period is not None:
+            return x
+        v0, v1 = self.values[0], self.values[-1]
+        xw = v0 + np.mod(x - v0, self.wrap)
+        to_first = (xw > v1) & (v0 + self.wrap - xw < xw - v1)
+        return np.where(to_first, v0, xw)
+
+    def in_gap(self, x):
+        """True where angle ``x`` lies outside the covered arc of a wrapped axis."""
+        if self.period is not None:
+            return np.zeros(np.shape(x), bool)
+        if self.wrap is None:
+            return (x < self.values[0]) | (x > self.values[-1])
+        v0 = self.values[0]
+        return v0 + np.mod(x - v0, self.wrap) > self.values[-1] + 1e-12
+
     def fractional_index(self, x):
         """Continuous index of coordinates ``x``: clamped to [0, n−1], or in [0, n) if periodic."""
         n = self.values.size
-        x = np.asarray(x, float)
+        x = self.reduce(np.asarray(x, float))
         if n == 1:
             return np.zeros_like(x)
         if self.period is not None:
@@ -138,7 +161,7 @@ class Axis:
 
     def equals(self, other: "Axis") -> bool:
         return (self.name == other.name and self.warp == other.warp and self.period == other.period
-                and self.values.shape == other.values.shape and np.array_equal(self.values, other.values))
+                and self.wrap == other.wrap and self.values.shape == other.values.shape and np.array_equal(self.values, other.values))
 
 
 class Grid:
@@ -157,7 +180,7 @@ class Grid:
 
     @property
     def size(self) -> int:
-        return int(np.prod(self.shape))
+        return math.prod(self.shape)
 
     @property
     def coords(self) -> dict:
@@ -206,13 +229,13 @@ class RusinkiewiczGrid(Grid):
 
     def __init__(self, theta_h=90, theta_d=90, phi_d=180, phi_h=None, *, theta_h_spacing="linear",
                  phi_d_fold="reciprocity", sample_position="bin-centre", name="rusinkiewicz"):
-        if phi_d_fold not in PHI_D_FOLDS:
+        if not isinstance(phi_d_fold, str) or phi_d_fold not in PHI_D_FOLDS:
             raise ParameterError("phi_d_fold", f"expected one of {', '.join(map(repr, PHI_D_FOLDS))}, got "
-                                 f"{phi_d_fold!r}{suggest(str(phi_d_fold), PHI_D_FOLDS)}")
-        if sample_position not in SAMPLE_POSITIONS:
+                                 f"{phi_d_fold!r}{suggest(phi_d_fold, PHI_D_FOLDS)}")
+        if not isinstance(sample_position, str) or sample_position not in SAMPLE_POSITIONS:
             raise ParameterError("sample_position", f"expected one of {', '.join(map(repr, SAMPLE_POSITIONS))},"
                                  f" got {sample_position!r}")
-        if theta_h_spacing not in ("linear", "merl", "explicit"):
+        if not isinstance(theta_h_spacing, str) or theta_h_spacing not in ("linear", "merl", "explicit"):
             raise ParameterError("theta_h_spacing", f"expected 'linear', 'merl' or an explicit list, got "
                                  f"{theta_h_spacing!r}")
         self.anisotropic = phi_h is not None
@@ -326,7 +349,11 @@ class SphericalGrid(Grid):
         _check_range("theta_i", ti, 0.0, HALF_PI, closed=True)
         to = np.asarray(theta_o, float)
         if rel:
-            _check_range("dtheta_o", to, -np.pi, np.pi, closed=True)
+            _check_range("dtheta_o", to, -HALF_PI, np.pi, closed=True)
+            if ti.size and to.size and ti[0] + to[0] < -1e-12:
+                raise ParameterError("dtheta_o", f"theta_i + dtheta_o must be >= 0 (a negative theta_o is the same "
+                                     f"direction as its mirror across the normal); the smallest is "
+                                     f"{np.degrees(ti[0] + to[0]):g} degrees")
         else:
             _check_range("theta_o", to, 0.0, HALF_PI, closed=True)
         self.axes = (
@@ -355,9 +382,11 @@ class SphericalGrid(Grid):
     def fractional_index(self, wi, wo, isotropic: bool = False):
         ti, pi_ = vec_to_sph(wi)
         to, po = vec_to_sph(wo)
-        if isotropic and len(self.axes[1]) == 1:
-            # Rotate the pair about the normal so that φi lands on the grid's only φi node.
-            shift = self.axes[1].values[0] - pi_
+        if isotropic:
+            # Rotate pairs whose φi the table does not cover onto its first φi node.
+            ax = self.axes[1]
+            off = ax.in_gap(pi_) if len(ax) > 1 else np.ones(np.shape(pi_), bool)
+            shift = np.where(off, ax.values[0] - pi_, 0.0)
             pi_ = pi_ + shift
             po = po + shift
         if self.relative_to == "specular":
@@ -374,23 +403,33 @@ class SphericalGrid(Grid):
 
 
 def _phi_axis(name, values, centred=False):
+    """An azimuth axis: periodic when its nodes go round the circle without a wider gap at the
+    seam than between them; otherwise wrapped (queries in the gap go to the nearer end)."""
     v = np.asarray(values, float)
     if v.ndim != 1 or v.size == 0:
         raise ParameterError(name, "an axis needs at least one value")
-    lo = -np.pi if centred else -TWO_PI
-    _check_range(name, v, lo, TWO_PI, closed=True)
-    period = None
-    if v.size > 2:
-        step = np.diff(v)
-        if np.allclose(step, step[0], rtol=1e-9, atol=1e-12) and np.isclose(v[-1] - v[0] + step[0], TWO_PI,
-                                                                             rtol=1e-9, atol=1e-12):
-            period = TWO_PI
-    return Axis(name, v, "linear", period)
+    lo, hi = (-np.pi, np.pi) if centred else (-TWO_PI, TWO_PI)
+    _check_range(name, v, lo, hi, closed=True)
+    if v.size > 1 and np.isclose(v[-1] - v[0], TWO_PI, rtol=0, atol=1e-9):
+        v = v[:-1]  # 0° and 360° are one azimuth: keep the first
+    if v[-1] - v[0] >= TWO_PI:
+        raise ParameterError(name, "azimuths must span less than 360 degrees")
+    if v.size > 1:
+        seam = v[0] + TWO_PI - v[-1]
+        if seam <= np.diff(v).max() * (1 + 1e-9):
+            return Axis(name, v, "linear", TWO_PI)
+    return Axis(name, v, "linear", None, TWO_PI)
+
+
+#: Most nodes one axis may have (a guard against typos such as 10**9).
+MAX_AXIS_NODES = 1_000_000
 
 
 def _count(label, n):
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 1:
         raise ParameterError(f"n_{label}", f"expected a positive whole number of samples, got {n!r}")
+    if n > MAX_AXIS_NODES:
+        raise ParameterError(f"n_{label}", f"at most {MAX_AXIS_NODES} nodes per axis, got {n}")
     return int(n)
 
 
@@ -425,6 +464,8 @@ def _expand(key, raw):
         if isinstance(item, bool):
             raise ParameterError(key, "expected numbers or ranges {start, stop, step|num}")
         if isinstance(item, (int, float)):
+            if not np.isfinite(item):
+                raise ParameterError(key, "expected finite numbers")
             out.append(float(item))
         elif isinstance(item, dict):
             out.extend(_range(key, item))
@@ -445,21 +486,24 @@ def _range(key, r):
     if "start" not in r or "stop" not in r or (("step" in r) == ("num" in r)):
         raise ParameterError(key, "a range needs start, stop and exactly one of step or num")
     for k in ("start", "stop", "step"):
-        if k in r and (isinstance(r[k], bool) or not isinstance(r[k], (int, float))):
-            raise ParameterError(f"{key}.{k}", "expected a number")
+        if k in r and (isinstance(r[k], bool) or not isinstance(r[k], (int, float)) or not np.isfinite(r[k])):
+            raise ParameterError(f"{key}.{k}", "expected a finite number")
     start, stop = float(r["start"]), float(r["stop"])
     endpoint = r.get("endpoint", True)
     if not isinstance(endpoint, bool):
         raise ParameterError(f"{key}.endpoint", "expected true or false")
     if "num" in r:
         num = r["num"]
-        if isinstance(num, bool) or not isinstance(num, int) or num < 1:
-            raise ParameterError(f"{key}.num", "expected a positive whole number")
+        if isinstance(num, bool) or not isinstance(num, int) or not 1 <= num <= MAX_AXIS_NODES:
+            raise ParameterError(f"{key}.num", f"expected a whole number from 1 to {MAX_AXIS_NODES}")
         return list(np.linspace(start, stop, num, endpoint=endpoint))
     step = float(r["step"])
     if step <= 0 or stop < start:
         raise ParameterError(f"{key}.step", "expected step > 0 and stop >= start")
-    n = int(np.floor((stop - start) / step + 1e-9)) + 1
+    count = (stop - start) / step
+    if not count < MAX_AXIS_NODES:
+        raise ParameterError(f"{key}.step", f"the range would have more than {MAX_AXIS_NODES} values")
+    n = int(np.floor(count + 1e-9)) + 1
     vals = start + step * np.arange(n)
     if not endpoint:
         vals = vals[vals < stop - 1e-9]
@@ -484,9 +528,9 @@ def grid_from_config(cfg: dict) -> Grid:
     Raises :class:`ParameterError` naming the offending key.
     """
     kind = cfg.get("type")
-    if kind not in _GRID_KEYS:
+    if not isinstance(kind, str) or kind not in _GRID_KEYS:
         raise ParameterError("type", f"expected one of {', '.join(map(repr, GRID_TYPES))}, got {kind!r}"
-                             f"{suggest(str(kind), GRID_TYPES)}")
+                             f"{suggest(kind, GRID_TYPES)}")
     valid = _GRID_KEYS[kind]
     for key in cfg:
         if key not in valid:
@@ -549,9 +593,9 @@ def _grid_from_config(kind, cfg):
 
 
 def _choice(key, value, choices):
-    if value not in choices:
+    if not isinstance(value, str) or value not in choices:
         raise ParameterError(key, f"expected one of {', '.join(map(repr, choices))}, got {value!r}"
-                             f"{suggest(str(value), choices)}")
+                             f"{suggest(value, choices)}")
     return value
 
 

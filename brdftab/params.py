@@ -34,7 +34,9 @@ REQUIRED = _Required()
 
 def suggest(word: str, choices) -> str:
     """`` (did you mean 'x'?)`` for the nearest valid choice, or an empty string."""
-    close = difflib.get_close_matches(word, list(choices), n=1, cutoff=0.6)
+    if not isinstance(word, str):
+        return ""
+    close = difflib.get_close_matches(word, [c for c in choices if isinstance(c, str)], n=1, cutoff=0.6)
     return f" (did you mean '{close[0]}'?)" if close else ""
 
 
@@ -111,9 +113,12 @@ class Param:
         """Validate ``value`` and return the internal form; raises :class:`ParameterError`."""
         bad = ParameterError(self.name, f"expected {self.expected()}, got {_show(value)}")
         if self.kind == "float":
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)):
+            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or np.iscomplexobj(value):
                 raise bad
-            x = float(value)
+            try:
+                x = float(value)
+            except OverflowError:
+                raise bad from None
             if not self._in_range(np.array([x])):
                 raise bad
             return x
@@ -128,7 +133,7 @@ class Param:
             return cv
         if self.kind == "choice":
             if not isinstance(value, str) or value not in self.choices:
-                hint = suggest(value, self.choices) if isinstance(value, str) else ""
+                hint = suggest(value, self.choices)
                 raise ParameterError(self.name, f"expected {self.expected()}, got {_show(value)}{hint}")
             return value
         if self.kind == "bool":

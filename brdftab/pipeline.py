@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from . import formats
-from ._atomic import terminate_as_interrupt
+from ._atomic import check_target, terminate_as_interrupt
 from .errors import BrdftabError, ValidationError
 from .spec import Spec
 from .table import Table, tabulate
@@ -37,12 +37,9 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
         if out_dir is not None:
             rel = Path(spec.raw["output"][len(targets)]["path"])
             target = rel if rel.is_absolute() else Path(out_dir) / rel
-        if target.exists() and not overwrite:
-            raise BrdftabError(f"{target}: already exists (use --overwrite to replace it)")
-        if not target.parent.is_dir():
-            raise BrdftabError(f"{target}: folder {target.parent} does not exist")
+        check_target(target, overwrite)
         targets.append(target)
-    if len(set(map(str, targets))) != len(targets):
+    if len({t.resolve() for t in targets}) != len(targets):
         raise BrdftabError(f"{spec.path}: two outputs write the same file")
 
     provenance = {"spec_sha256": spec.sha256, "spec_file": spec.path.name}

@@ -197,7 +197,7 @@ def _wavelengths(grid_cfg, model, path):
             or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in raw)):
         raise _fail(path, "grid.wavelengths_nm", "expected a non-empty list of wavelengths in nm")
     lam = np.asarray(raw, float)
-    if np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
+    if not np.all(np.isfinite(lam)) or np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
         raise _fail(path, "grid.wavelengths_nm", "expected positive wavelengths in increasing order")
     if not model.spectral and not model.layout.grey:
         raise _fail(path, "grid.wavelengths_nm", f"the model has channels {list(model.channels)}, not a "
@@ -223,6 +223,8 @@ def _outputs(raw, path):
             raise _fail(path, where, "expected a table with a path")
         if "path" not in item or not isinstance(item["path"], str) or not item["path"]:
             raise _fail(path, f"{where}.path", "missing or not a string")
+        if "\x00" in item["path"]:
+            raise _fail(path, f"{where}.path", "a path cannot contain a NUL character")
         fmt_name = item.get("format")
         try:
             fmt = formats.format_for(item["path"], fmt_name)

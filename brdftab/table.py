@@ -23,6 +23,7 @@ from __future__ import annotations
 import datetime as _dt
 import itertools
 import json
+import os
 
 import numpy as np
 import xarray as xr
@@ -30,7 +31,7 @@ import xarray as xr
 from ._version import __version__
 from .brdf import BRDF
 from .channels import Layout
-from .errors import FormatError, ParameterError
+from .errors import BrdftabError, FormatError, ParameterError
 from .grids import Grid, check_grid, grid_from_dataset
 
 __all__ = ["Table", "tabulate", "DEFAULT_CHUNK", "DIRECTION_CONVENTION", "PHI_CONVENTION"]
@@ -60,6 +61,8 @@ class Table(BRDF):
         except (ParameterError, KeyError) as exc:
             raise FormatError(f"table grid cannot be reconstructed: {exc}") from None
         var = ds["brdf"]
+        if var.dtype.kind not in "fiu":
+            raise FormatError(f"table variable 'brdf' must be numeric, not {var.dtype}")
         chan_dim = "wavelength" if "wavelength" in var.dims else "channel"
         expected = self.grid.dims + (chan_dim,)
         if var.dims != expected:
@@ -73,8 +76,9 @@ class Table(BRDF):
         else:
             self.layout = Layout(tuple(str(c) for c in ds["channel"].values))
         self.name = str(ds.attrs.get("model", "table"))
-        self.isotropic = _flag(ds.attrs.get("isotropic", 1))
-        self.reciprocal = _flag(ds.attrs.get("reciprocal", 1))
+        # Without the attribute only an isotropic parameterization implies isotropy.
+        self.isotropic = _flag(ds.attrs.get("isotropic", int(ds.attrs["parameterization"] == "rusinkiewicz")))
+        self.reciprocal = _flag(ds.attrs.get("reciprocal", 0))
 
     @property
     def values(self) -> np.ndarray:
@@ -163,8 +167,11 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
     """
     check_grid(brdf, grid)
     lam = brdf.layout.resolve(wavelengths)
+    if lam is not None and np.any(np.diff(lam) <= 0):
+        raise ParameterError("wavelengths", "a table's wavelengths must increase strictly")
     n = brdf.layout.n_out(lam)
     dtype = np.dtype(dtype)
+    _check_memory(grid, n, dtype)
     values = np.empty(grid.shape + (n,), dtype=dtype)
     flat = values.reshape(-1, n)
     size = grid.size
@@ -222,6 +229,19 @@ def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, pro
         attrs.update(provenance)
     ds = xr.Dataset({"brdf": var}, coords=coords, attrs=attrs)
     return Table(ds)
+
+
+def _check_memory(grid: Grid, n: int, dtype) -> None:
+    """Refuse a table larger than this machine's memory before allocating it."""
+    need = float(grid.size) * n * np.dtype(dtype).itemsize
+    try:
+        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
+        return
+    if need > 0.8 * have:
+        raise BrdftabError(f"the table would need {need / 2**30:.3g} GiB ({grid.describe()} x {n} channels x "
+                           f"{np.dtype(dtype).itemsize} bytes), more than this machine's {have / 2**30:.3g} GiB "
+                           "of memory allows; use a coarser grid")
 
 
 def _progress(total: int, progress: bool | None):

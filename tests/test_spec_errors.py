@@ -124,11 +124,51 @@ CASES = {
         _spec_text(extra="[validation]\nallow_invalids = true\n"),
         ["validation.allow_invalids", "did you mean 'allow_invalid'"],
     ),
+    # values of the wrong TOML type where a name is expected (must not crash on unhashables)
+    "grid-type-list": (_spec_text(grid='[grid]\ntype = ["merl"]\n'), ["grid.type"]),
+    "fold-list": (_spec_text(grid=_rusi('phi_d_fold = ["none"]\n')), ["grid.phi_d_fold"]),
+    "fold-table": (_spec_text(grid=_rusi("phi_d_fold = {a = 1}\n")), ["grid.phi_d_fold"]),
+    "output-format-list": (_spec_text(output='[[output]]\npath = "out.nc"\nformat = ["netcdf"]\n'),
+                           ["output[0].format"]),
+    "output-format-number": (_spec_text(output='[[output]]\npath = "out.nc"\nformat = 3\n'), ["output[0].format"]),
+    "output-path-nul": (_spec_text(output='[[output]]\npath = "a\\u0000b.nc"\n'), ["output[0].path", "NUL"]),
+    # numbers TOML allows but no grid or model does
+    "alpha-huge-int": (_spec_text(model=_microfacet("alpha = " + "9" * 400 + "\n")), ["model.alpha"]),
+    "albedo-huge-int-list": (_spec_text(model='[model]\nname = "lambert"\nalbedo = [' + "9" * 400 + "]\n"),
+                             ["model.albedo"]),
+    "range-nan": (_spec_text(grid=_rusi("theta_h_deg = {start = nan, stop = 10, step = 1}\n")),
+                  ["grid.theta_h_deg.start"]),
+    "range-inf": (_spec_text(grid=_rusi("theta_h_deg = {start = 0, stop = inf, step = 1}\n")),
+                  ["grid.theta_h_deg.stop"]),
+    "range-tiny-step": (_spec_text(grid=_rusi("theta_h_deg = {start = 0, stop = 10, step = 1e-300}\n")),
+                        ["grid.theta_h_deg.step"]),
+    "range-negative-num": (_spec_text(grid=_rusi("theta_h_deg = {start = 0, stop = 10, num = -3}\n")),
+                           ["grid.theta_h_deg.num"]),
+    "axis-too-many-nodes": (_spec_text(grid=_rusi("n_theta_h = 1000000000\n")), ["grid.n_theta_h"]),
+    "spectrum-infinite-wavelength": (
+        _spec_text(model='[model]\nname = "lambert"\nalbedo = {wavelengths_nm = [400, inf], values = [0.1, 0.2]}\n'),
+        ["model.albedo", "finite"]),
+    "wavelengths-nan": (_spec_text(grid=_rusi("wavelengths_nm = [nan]\n")), ["grid.wavelengths_nm"]),
+    "relative-theta-o-below-zero": (
+        _spec_text(grid='[grid]\ntype = "spherical"\nrelative_to = "specular"\ntheta_i_deg = [30]\n'
+                        'phi_i_deg = [0]\ndtheta_o_deg = [-50, 0]\ndphi_o_deg = [0]\n'),
+        ["grid.dtheta_o_deg", "theta_i + dtheta_o"]),
+    "relative-dphi-beyond-180": (
+        _spec_text(grid='[grid]\ntype = "spherical"\nrelative_to = "specular"\ntheta_i_deg = [30]\n'
+                        'phi_i_deg = [0]\ndtheta_o_deg = [0]\ndphi_o_deg = [100, 200]\n'),
+        ["grid.dphi_o_deg"]),
+    "wavelengths-outside-common-range": (
+        _spec_text(model=_microfacet('alpha = 0.3\nfresnel = "conductor"\n'
+                                     "n = {wavelengths_nm = [400, 700], values = [1.0, 1.0]}\n"
+                                     "k = {wavelengths_nm = [300, 800], values = [2.0, 2.0]}\n"),
+                   grid=_rusi("n_theta_h = 2\nn_theta_d = 2\nn_phi_d = 2\nwavelengths_nm = [350, 750]\n")),
+        ["grid.wavelengths_nm", "[400, 700]"]),
 }
 
 #: Cases also run as a real subprocess (one line on stderr, no traceback).
 SUBPROCESS_CASES = ["unknown-top-level-key", "unknown-model-name", "alpha-string", "theta-h-deg-out-of-range",
-                    "invalid-toml", "not-utf8", "missing-output"]
+                    "invalid-toml", "not-utf8", "missing-output", "grid-type-list", "alpha-huge-int",
+                    "range-tiny-step", "axis-too-many-nodes"]
 
 
 def _write_spec(tmp_path: Path, case_id: str) -> Path:

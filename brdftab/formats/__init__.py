@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from .._atomic import atomic_path
+from .._atomic import atomic_path, check_target, deferred_signals
 from ..errors import BrdftabError, FormatError
 from ..params import suggest
 
@@ -64,6 +64,8 @@ def register(fmt: FileFormat) -> FileFormat:
 def format_for(path=None, format: str | None = None) -> FileFormat:
     """The format named ``format``, else the one registered for the extension of ``path``."""
     if format is not None:
+        if not isinstance(format, str):
+            raise BrdftabError(f"format must be a name such as {', '.join(map(repr, sorted(FORMATS)))}, got {format!r}")
         if format not in FORMATS:
             raise BrdftabError(f"unknown format {format!r}{suggest(format, FORMATS)}; known formats: "
                                f"{', '.join(sorted(FORMATS))}")
@@ -119,9 +121,11 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
         fmt.validate_options(options)
     except BrdftabError as exc:
         raise BrdftabError(f"{path}: {exc}") from None
+    check_target(path, overwrite)
     table = (fmt.prepare or _default_prepare)(brdf, grid)
     with atomic_path(path, overwrite=overwrite) as tmp:
-        fmt.write(table, tmp, **options)
+        with deferred_signals():
+            fmt.write(table, tmp, **options)
     return table
 
 

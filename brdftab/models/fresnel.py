@@ -58,11 +58,13 @@ def fresnel_conductor(cos_i, n, k):
     a = np.sqrt(np.maximum(0.5 * (a2b2 + t0), 0.0))
     t1 = a2b2 + c2
     t2 = 2.0 * a * c
-    rs = (t1 - t2) / (t1 + t2)
     t3 = c2 * a2b2 + s2 * s2
     t4 = t2 * s2
-    rp = rs * (t3 - t4) / (t3 + t4)
-    return 0.5 * (rs + rp)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rs = np.where(t1 + t2 > 0, (t1 - t2) / (t1 + t2), 1.0)   # 0/0 only at grazing with n=1, k=0
+        rp = rs * np.where(t3 + t4 > 0, (t3 - t4) / (t3 + t4), 1.0)
+    # rounding can push an index-matched interface (n = 1, k = 0) a few ulp below 0
+    return np.clip(0.5 * (rs + rp), 0.0, 1.0)
 
 
 def fresnel_dielectric(cos_i, eta):
@@ -72,12 +74,14 @@ def fresnel_dielectric(cos_i, eta):
     """
     c = np.clip(cos_i, 0.0, 1.0)
     s2_t = (1.0 - c * c) / (eta * eta)
-    tir = s2_t >= 1.0
+    tir = (eta < 1.0) & (s2_t >= 1.0)
     ct = np.sqrt(np.maximum(1.0 - s2_t, 0.0))
     with np.errstate(divide="ignore", invalid="ignore"):
         r_s = (c - eta * ct) / (c + eta * ct)
         r_p = (eta * c - ct) / (eta * c + ct)
-    return np.where(tir, 1.0, 0.5 * (r_s * r_s + r_p * r_p))
+        f = 0.5 * (r_s * r_s + r_p * r_p)
+    # exactly grazing incidence (c = 0) reflects everything; 0/0 there when eta = 1
+    return np.where(tir | (c == 0.0), 1.0, f)
 
 
 def fresnel_schlick(cos_i, f0):
