@@ -73,12 +73,10 @@ def normalize(v):
 
 
 def _rot(v, angle, i, j):
-    # Right-handed rotation by `angle` in the (i, j) coordinate plane.
+    # Right-handed rotation by `angle` in the (i, j) coordinate plane; broadcasts angle and v.
     v = np.asarray(v, float)
     c, s = np.cos(angle), np.sin(angle)
-    out = np.array(v, copy=True) if np.ndim(angle) == 0 else np.broadcast_to(
-        v, np.broadcast_shapes(v.shape, np.shape(angle) + (3,))
-    ).copy()
+    out = np.array(np.broadcast_to(v, np.broadcast_shapes(v.shape, np.shape(angle) + (3,))))
     vi, vj = v[..., i], v[..., j]
     out[..., i] = c * vi - s * vj
     out[..., j] = s * vi + c * vj

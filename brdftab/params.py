@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import difflib
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -60,7 +60,6 @@ class Param:
     choices: tuple = ()
     angle: bool = False
     used_when: str = ""
-    extra: dict = field(default_factory=dict)
 
     @property
     def required(self) -> bool:
