@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 from . import formats
 from ._atomic import check_target, terminate_as_interrupt
@@ -31,14 +30,9 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
     refused. The table is validated before export; a failed check refuses the export unless
     ``allow_invalid`` (or the spec's ``validation.allow_invalid``) is true.
     """
-    targets = []
-    for out in spec.outputs:
-        target = out.path
-        if out_dir is not None:
-            rel = Path(spec.raw["output"][len(targets)]["path"])
-            target = rel if rel.is_absolute() else Path(out_dir) / rel
+    targets = [out.target(out_dir) for out in spec.outputs]
+    for target in targets:
         check_target(target, overwrite)
-        targets.append(target)
     if len({t.resolve() for t in targets}) != len(targets):
         raise BrdftabError(f"{spec.path}: two outputs write the same file")
 

@@ -60,11 +60,20 @@ VALIDATION_KEYS = {"allow_invalid": bool}
 
 @dataclass
 class Output:
-    """One ``[[output]]``: target path (absolute), format name (or None) and format options."""
+    """One ``[[output]]``: target path (resolved against the spec's folder), format name (or
+    None), format options, and the path as the spec wrote it (for ``--out`` folders)."""
 
     path: Path
     format: str | None = None
     options: dict = field(default_factory=dict)
+    as_written: Path | None = None
+
+    def target(self, out_dir=None) -> Path:
+        """Where to write: ``path``, or the written path placed in ``out_dir``."""
+        rel = self.as_written if self.as_written is not None else self.path
+        if out_dir is None or rel.is_absolute():
+            return self.path
+        return Path(out_dir) / rel
 
 
 @dataclass
@@ -174,13 +183,13 @@ def build_model(table, where: str, path) -> BRDF:
     try:
         return cls(**kwargs)
     except ParameterError as exc:
-        key = by_spec_key_name(cls, exc.key)
+        key = _spec_key(cls, exc.key)
         raise _fail(path, f"{where}.{key}" if key else where, exc.detail) from None
     except BrdftabError as exc:
         raise _fail(path, where, str(exc)) from None
 
 
-def by_spec_key_name(cls, name: str) -> str:
+def _spec_key(cls, name: str) -> str:
     for p in cls.params:
         if p.name == name:
             return p.spec_key
@@ -239,7 +248,7 @@ def _outputs(raw, path):
         target = Path(item["path"])
         if not target.is_absolute():
             target = path.parent / target
-        outs.append(Output(path=target, format=fmt.name, options=options))
+        outs.append(Output(path=target, format=fmt.name, options=options, as_written=Path(item["path"])))
     return outs
 
 
