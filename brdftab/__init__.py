@@ -45,11 +45,12 @@ def open(path) -> Table:  # noqa: A001 - mirrors xarray.open_dataset / io.open n
     return formats.read(path)
 
 
-def save(brdf: BRDF, path, grid=None, *, format=None, overwrite=True, **options):
+def save(brdf: BRDF, path, grid=None, *, format=None, overwrite=False, **options):
     """Write ``brdf`` to ``path`` (format from ``format`` or the extension), atomically.
 
     A table is written as it is when ``grid`` is None or equals its own grid; otherwise the
-    BRDF is tabulated (resampled) on ``grid`` first.
+    BRDF is tabulated (resampled) on ``grid`` first. An existing file is replaced only with
+    ``overwrite=True``.
     """
     from . import formats
 

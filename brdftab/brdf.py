@@ -21,8 +21,9 @@ from __future__ import annotations
 import numpy as np
 
 from .channels import Layout
+from .errors import ParameterError
 from .geometry import as_directions
-from .params import parse_params
+from .params import Kind, parse_params, register_kind
 
 __all__ = ["BRDF", "Model", "EVAL_CHUNK"]
 
@@ -119,13 +120,44 @@ class Model(BRDF):
         out = {}
         for p in self.params:
             v = self._values[p.name]
-            if v is None:
-                continue
-            if hasattr(v, "to_json"):
-                v = v.to_json()
-            elif isinstance(v, BRDF):
-                v = {"model": v.name, "parameters": v.parameters}
-            elif isinstance(v, tuple) and v and isinstance(v[0], BRDF):
-                v = [{"model": t.name, "parameters": t.parameters} for t in v]
-            out[p.name] = v
+            if v is not None:
+                out[p.name] = p.to_json(v)
         return out
+
+
+def _brdf_json(v):
+    return {"model": v.name, "parameters": v.parameters}
+
+
+class _BRDFKind(Kind):
+    name = "brdf"
+
+    def expected(self, p):
+        return "a model"
+
+    def convert(self, p, value):
+        if not isinstance(value, BRDF):
+            raise ParameterError(p.name, f"expected {self.expected(p)}, got {type(value).__name__}")
+        return value
+
+    def to_json(self, value):
+        return _brdf_json(value)
+
+
+class _BRDFsKind(Kind):
+    name = "brdfs"
+
+    def expected(self, p):
+        return "a non-empty list of models"
+
+    def convert(self, p, value):
+        if not isinstance(value, (list, tuple)) or not value or not all(isinstance(v, BRDF) for v in value):
+            raise ParameterError(p.name, f"expected {self.expected(p)}")
+        return tuple(value)
+
+    def to_json(self, value):
+        return [_brdf_json(v) for v in value]
+
+
+register_kind(_BRDFKind())
+register_kind(_BRDFsKind())

@@ -20,7 +20,7 @@ import numpy as np
 from .channels import ChannelValue
 from .errors import ParameterError
 
-__all__ = ["Param", "REQUIRED", "parse_params", "suggest"]
+__all__ = ["Param", "Kind", "KINDS", "REQUIRED", "parse_params", "register_kind", "suggest"]
 
 
 class _Required:
@@ -40,13 +40,131 @@ def suggest(word: str, choices) -> str:
     return f" (did you mean '{close[0]}'?)" if close else ""
 
 
+class Kind:
+    """A kind of parameter value: how to check and convert it, and how to describe it.
+
+    Kinds are registered by name (:func:`register_kind`) by the module that owns the values
+    they accept — ``brdf``/``brdfs`` by :mod:`brdftab.brdf` — so this module imports nothing
+    of brdftab's models. A new kind (a coefficient file, a spectrum file, a length in µm) is
+    one subclass.
+    """
+
+    name: str = ""
+
+    def expected(self, p: "Param") -> str:
+        """What ``p`` accepts, as a phrase."""
+        return self.name
+
+    def convert(self, p: "Param", value):
+        """Validate ``value`` for ``p``; return the internal form or raise ParameterError."""
+        raise NotImplementedError
+
+    def to_json(self, value):
+        """A JSON-able form of a converted value (provenance, ``brdftab models --json``)."""
+        return value.to_json() if hasattr(value, "to_json") else value
+
+
+#: Parameter kinds by name.
+KINDS: dict = {}
+
+
+def register_kind(kind: Kind) -> Kind:
+    KINDS[kind.name] = kind
+    return kind
+
+
+def _bad(p, value, why=""):
+    return ParameterError(p.name, f"expected {p.expected()}, got {_show(value)}{why}")
+
+
+class FloatKind(Kind):
+    name = "float"
+
+    def expected(self, p):
+        rng = p.range_text()
+        return f"a number{' ' + rng if rng else ''}"
+
+    def convert(self, p, value):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or np.iscomplexobj(value):
+            raise _bad(p, value)
+        try:
+            x = float(value)
+        except OverflowError:
+            raise _bad(p, value) from None
+        if not p.in_range(np.array([x])):
+            raise _bad(p, value)
+        return x
+
+
+class IntKind(Kind):
+    name = "int"
+
+    def expected(self, p):
+        rng = p.range_text()
+        return f"a whole number{' ' + rng if rng else ''}"
+
+    def convert(self, p, value):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise _bad(p, value)
+        if not p.in_range(np.array([float(value)])):
+            raise _bad(p, value)
+        return int(value)
+
+
+class ChannelKind(Kind):
+    name = "channel"
+
+    def expected(self, p):
+        rng = p.range_text()
+        rng = f" {rng}" if rng else ""
+        return f"a number{rng}, a list of such numbers (one per channel) or a spectrum {{wavelengths_nm, values}}"
+
+    def convert(self, p, value):
+        try:
+            cv = ChannelValue.parse(value)
+        except ValueError as exc:
+            raise _bad(p, value, "" if isinstance(value, (bool, str)) else f" ({exc})") from None
+        if not p.in_range(cv.values):
+            raise _bad(p, value)
+        return cv
+
+
+class ChoiceKind(Kind):
+    name = "choice"
+
+    def expected(self, p):
+        return "one of " + ", ".join(repr(c) for c in p.choices)
+
+    def convert(self, p, value):
+        if not isinstance(value, str) or value not in p.choices:
+            raise _bad(p, value, suggest(value, p.choices))
+        return value
+
+
+class BoolKind(Kind):
+    name = "bool"
+
+    def expected(self, p):
+        return "true or false"
+
+    def convert(self, p, value):
+        if not isinstance(value, (bool, np.bool_)):
+            raise _bad(p, value)
+        return bool(value)
+
+
+for _k in (FloatKind(), IntKind(), ChannelKind(), ChoiceKind(), BoolKind()):
+    register_kind(_k)
+
+
 @dataclass(frozen=True)
 class Param:
     """One declared parameter.
 
-    kind: ``float`` (a real number), ``channel`` (number, list per channel or spectrum —
-    :class:`~brdftab.channels.ChannelValue`), ``choice`` (one of ``choices``), ``bool``,
-    ``brdf`` (a BRDF object) or ``brdfs`` (a non-empty list of BRDF objects).
+    ``kind`` names a registered :class:`Kind`: ``float``, ``int``, ``channel`` (number, list
+    per channel or spectrum — :class:`~brdftab.channels.ChannelValue`), ``choice`` (one of
+    ``choices``), ``bool``; ``brdf`` and ``brdfs`` (registered by :mod:`brdftab.brdf`); and
+    the component kinds of :mod:`brdftab.models.components`.
     """
 
     name: str
@@ -70,6 +188,13 @@ class Param:
         """The key a spec file uses (``<name>_deg`` for angles)."""
         return f"{self.name}_deg" if self.angle else self.name
 
+    @property
+    def kind_object(self) -> Kind:
+        try:
+            return KINDS[self.kind]
+        except KeyError:
+            raise AssertionError(f"unknown parameter kind {self.kind!r}") from None
+
     def range_text(self) -> str:
         parts = []
         if self.minimum is not None:
@@ -80,23 +205,9 @@ class Param:
 
     def expected(self) -> str:
         """What this parameter accepts, as a phrase."""
-        rng = self.range_text()
-        rng = f" {rng}" if rng else ""
-        if self.kind == "float":
-            return f"a number{rng}"
-        if self.kind == "channel":
-            return f"a number{rng}, a list of such numbers (one per channel) or a spectrum {{wavelengths_nm, values}}"
-        if self.kind == "choice":
-            return "one of " + ", ".join(repr(c) for c in self.choices)
-        if self.kind == "bool":
-            return "true or false"
-        if self.kind == "brdf":
-            return "a model"
-        if self.kind == "brdfs":
-            return "a non-empty list of models"
-        return self.kind
+        return self.kind_object.expected(self)
 
-    def _in_range(self, x: np.ndarray) -> bool:
+    def in_range(self, x: np.ndarray) -> bool:
         if not np.all(np.isfinite(x)):
             return False
         if self.minimum is not None:
@@ -110,52 +221,14 @@ class Param:
 
     def convert(self, value):
         """Validate ``value`` and return the internal form; raises :class:`ParameterError`."""
-        bad = ParameterError(self.name, f"expected {self.expected()}, got {_show(value)}")
-        if self.kind == "float":
-            if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or np.iscomplexobj(value):
-                raise bad
-            try:
-                x = float(value)
-            except OverflowError:
-                raise bad from None
-            if not self._in_range(np.array([x])):
-                raise bad
-            return x
-        if self.kind == "channel":
-            try:
-                cv = ChannelValue.parse(value)
-            except ValueError as exc:
-                why = "" if isinstance(value, (bool, str)) else f" ({exc})"
-                raise ParameterError(self.name, f"expected {self.expected()}, got {_show(value)}{why}") from None
-            if not self._in_range(cv.values):
-                raise bad
-            return cv
-        if self.kind == "choice":
-            if not isinstance(value, str) or value not in self.choices:
-                hint = suggest(value, self.choices)
-                raise ParameterError(self.name, f"expected {self.expected()}, got {_show(value)}{hint}")
-            return value
-        if self.kind == "bool":
-            if not isinstance(value, (bool, np.bool_)):
-                raise bad
-            return bool(value)
-        if self.kind == "brdf":
-            from .brdf import BRDF
+        return self.kind_object.convert(self, value)
 
-            if not isinstance(value, BRDF):
-                raise bad
-            return value
-        if self.kind == "brdfs":
-            from .brdf import BRDF
-
-            if not isinstance(value, (list, tuple)) or not value or not all(isinstance(v, BRDF) for v in value):
-                raise bad
-            return tuple(value)
-        raise AssertionError(f"unknown parameter kind {self.kind}")
+    def to_json(self, value):
+        return None if value is None else self.kind_object.to_json(value)
 
 
-def parse_params(declared, given: dict, model: str) -> dict:
-    """Validate keyword arguments against declarations; fill defaults.
+def parse_params(declared, given: dict, model: str, fill: bool = True) -> dict:
+    """Validate keyword arguments against declarations; fill defaults (unless ``fill`` is false).
 
     Unknown names and missing required parameters raise :class:`ParameterError` naming the
     parameter, the model and what is expected.
@@ -165,15 +238,21 @@ def parse_params(declared, given: dict, model: str) -> dict:
     for key, value in given.items():
         if key not in by_name:
             raise ParameterError(
-                key, f"unknown parameter for model '{model}'{suggest(key, by_name)}; valid: {', '.join(by_name)}"
+                key, f"unknown parameter for {_owner(model)}{suggest(key, by_name)}; valid: {', '.join(by_name)}"
             )
         out[key] = by_name[key].convert(value)
+    if not fill:
+        return out
     for p in declared:
         if p.name not in out:
             if p.required:
-                raise ParameterError(p.name, f"missing required parameter of model '{model}': expected {p.expected()}")
+                raise ParameterError(p.name, f"missing required parameter of {_owner(model)}: expected {p.expected()}")
             out[p.name] = None if p.default is None else p.convert(p.default)
     return out
+
+
+def _owner(model: str) -> str:
+    return model if " " in model else f"model '{model}'"
 
 
 def _fmt(x) -> str:

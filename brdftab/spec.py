@@ -55,7 +55,6 @@ else:  # pragma: no cover - Python 3.10
 __all__ = ["Spec", "Output", "load_spec", "build_model"]
 
 TOP_KEYS = ("description", "model", "grid", "output", "validation")
-VALIDATION_KEYS = {"allow_invalid": bool}
 
 
 @dataclass
@@ -253,14 +252,25 @@ def _outputs(raw, path):
 
 
 def _validation(raw, path):
+    from .checks import CHECKS, configure
+
     if not isinstance(raw, dict):
         raise _fail(path, "validation", "expected a table [validation]")
     out = {"allow_invalid": False}
+    layer = {}
     for key, value in raw.items():
-        if key not in VALIDATION_KEYS:
-            raise _fail(path, f"validation.{key}", f"unknown key{suggest(key, VALIDATION_KEYS)}; valid: "
-                        f"{', '.join(VALIDATION_KEYS)}")
-        if not isinstance(value, VALIDATION_KEYS[key]):
-            raise _fail(path, f"validation.{key}", f"expected {VALIDATION_KEYS[key].__name__}")
-        out[key] = value
+        if key == "allow_invalid":
+            if not isinstance(value, bool):
+                raise _fail(path, "validation.allow_invalid", "expected true or false")
+            out[key] = value
+        elif key in CHECKS:
+            layer[key] = value
+        else:
+            valid = ["allow_invalid", *CHECKS]
+            raise _fail(path, f"validation.{key}", f"unknown key{suggest(key, valid)}; valid: {', '.join(valid)}")
+    try:
+        configure(layer)
+    except ParameterError as exc:
+        raise _fail(path, f"validation.{exc.key}", exc.detail) from None
+    out.update(layer)
     return out

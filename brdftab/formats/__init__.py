@@ -1,33 +1,53 @@
-"""File formats: a registry of readers and writers, by name, extension and magic bytes.
+"""File formats: a registry of readers and writers, by name, extension and content.
 
-Each format module registers a :class:`FileFormat`. The rest of brdftab reads and writes
-only through :func:`read` and :func:`write`; it never imports a format module directly.
+Each format module registers one :class:`FileFormat`. The rest of brdftab reads and writes
+only through :func:`read`, :func:`write` and :func:`target_grid`; it never imports a format
+module directly (the modules listed in :data:`BUILTIN` are imported here, lazily where they
+need an optional library, so ``import brdftab`` works without them).
 
-Writing is "tabulate if needed, then write atomically": a :class:`~brdftab.table.Table`
-whose grid equals the target grid is written as it is (values copied, not resampled); any
-other BRDF is sampled on the target grid first.
+A format states (after xarray's ``BackendEntrypoint`` and ALTA's data plug-ins):
+
+* what it can open: ``extensions``, ``magic`` byte prefixes and an optional ``sniff(head,
+  size)`` test on the first bytes and the file size (MERL has no magic number);
+* which grid it stores: ``native_grid(requested, options)`` returns the grid the format
+  writes for a requested grid (``None`` = any grid: the caller's). MERL answers the MERL grid
+  whatever is asked; netCDF keeps the requested one;
+* which optional library it needs: ``requires`` (module names); when one is missing the
+  format reports itself unavailable with one line, and every other format keeps working.
+
+Writing is "tabulate if needed, then write atomically": ``prepare(brdf, grid, **options)``
+turns any BRDF into what ``write`` takes. The default reuses a :class:`~brdftab.table.Table`
+whose grid equals the target grid (values copied, never resampled) and otherwise tabulates
+the BRDF on the target grid. A format that needs the model itself (the RGL ``.bsdf`` writer
+samples D and the VNDF) supplies its own ``prepare``.
 """
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
 from .._atomic import atomic_path, check_target, deferred_signals
-from ..errors import BrdftabError, FormatError
+from ..errors import BrdftabError, FormatError, ParameterError
 from ..params import suggest
 
-__all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "format_for"]
+__all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "format_for", "target_grid",
+           "prepare", "available"]
+
+#: Bytes of a file's head passed to ``magic`` and ``sniff``.
+HEAD_BYTES = 64
 
 
 @dataclass(frozen=True)
 class FileFormat:
-    """A file format: how to recognise it, read it into a table and write a table to it.
+    """A file format: how to recognise it, which grid it stores, how to read and write it.
 
-    ``write(table, path, **options)`` writes to ``path`` (a temporary the registry renames);
-    ``prepare(brdf, grid)`` returns the table to write, tabulating when needed (the default
-    needs a grid for anything that is not already a table).
+    ``read(path) -> Table`` raises :class:`~brdftab.errors.FormatError` (one line) for
+    damaged input. ``write(payload, path, **options)`` writes what ``prepare`` returned to
+    ``path`` (a temporary the registry renames).
     """
 
     name: str
@@ -36,20 +56,46 @@ class FileFormat:
     read: Callable
     write: Callable
     magic: tuple = ()
+    sniff: Callable | None = None
+    requires: tuple = ()
+    native_grid: Callable | None = None
     options: dict = field(default_factory=dict)
     prepare: Callable | None = None
     check_options: Callable | None = None
 
+    def missing(self) -> list:
+        """Names of the optional libraries this format needs that are not installed."""
+        return [m for m in self.requires if importlib.util.find_spec(m) is None]
+
+    @property
+    def available(self) -> bool:
+        return not self.missing()
+
+    def ensure_available(self) -> None:
+        miss = self.missing()
+        if miss:
+            raise BrdftabError(f"format {self.name} needs the Python package {', '.join(miss)}, which is not "
+                               f"installed (pip install {' '.join(miss)})")
+
     def validate_options(self, options: dict) -> None:
         """Raise :class:`~brdftab.errors.ParameterError` naming a bad option or value."""
-        from ..errors import ParameterError
-
         for key in options:
             if key not in self.options:
                 raise ParameterError(key, f"unknown option for format {self.name}{suggest(key, self.options)}; "
                                      f"valid: {', '.join(self.options) or 'none'}")
         if self.check_options is not None:
             self.check_options(**options)
+
+    def opens(self, head: bytes, size: int) -> bool:
+        """True when the content (first bytes, file size) is this format's."""
+        if any(head.startswith(m) for m in self.magic):
+            return True
+        if self.sniff is not None:
+            try:
+                return bool(self.sniff(head, size))
+            except Exception:  # a sniffer never decides by crashing
+                return False
+        return False
 
 
 #: Registered formats by name.
@@ -59,6 +105,11 @@ FORMATS: dict = {}
 def register(fmt: FileFormat) -> FileFormat:
     FORMATS[fmt.name] = fmt
     return fmt
+
+
+def available() -> dict:
+    """``{name: FileFormat}`` of the formats whose optional libraries are installed."""
+    return {n: f for n, f in FORMATS.items() if f.available}
 
 
 def format_for(path=None, format: str | None = None) -> FileFormat:
@@ -79,24 +130,31 @@ def format_for(path=None, format: str | None = None) -> FileFormat:
 
 
 def detect(path) -> FileFormat:
-    """Format of an existing file: by magic bytes, then by extension."""
+    """Format of an existing file: by content (magic bytes, sniffers), then by extension."""
     path = Path(path)
     try:
         with open(path, "rb") as fh:
-            head = fh.read(16)
+            head = fh.read(HEAD_BYTES)
+            size = fh.seek(0, 2)
     except FileNotFoundError:
         raise BrdftabError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise BrdftabError(f"{path}: is a folder, not a file") from None
     except OSError as exc:
         raise BrdftabError(f"{path}: cannot read ({exc.strerror})") from None
     for fmt in FORMATS.values():
-        if any(head.startswith(m) for m in fmt.magic):
+        if fmt.opens(head, size):
             return fmt
-    return format_for(path)
+    try:
+        return format_for(path)
+    except BrdftabError:
+        raise FormatError(f"{path}: not a file format brdftab reads (known: {', '.join(sorted(FORMATS))})") from None
 
 
 def read(path):
     """Read a table from ``path`` (any registered format)."""
     fmt = detect(path)
+    fmt.ensure_available()
     try:
         return fmt.read(Path(path))
     except BrdftabError as exc:
@@ -104,7 +162,14 @@ def read(path):
         raise FormatError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
 
 
-def _default_prepare(brdf, grid):
+def target_grid(fmt: FileFormat, requested, options: dict | None = None):
+    """The grid ``fmt`` stores when asked for ``requested`` (None: the format's own, if any)."""
+    if fmt.native_grid is None:
+        return requested
+    return fmt.native_grid(requested, dict(options or {}))
+
+
+def _default_prepare(brdf, grid, **options):
     from ..table import Table, tabulate
 
     if isinstance(brdf, Table) and (grid is None or grid.equals(brdf.grid)):
@@ -114,20 +179,37 @@ def _default_prepare(brdf, grid):
     return tabulate(brdf, grid)
 
 
-def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool = True, **options):
-    """Write ``brdf`` to ``path`` atomically; returns the table written."""
+def prepare(fmt: FileFormat, brdf, grid, options: dict | None = None):
+    """What ``fmt.write`` takes for ``brdf`` on ``grid`` (reusing a table already on it)."""
+    return (fmt.prepare or _default_prepare)(brdf, grid, **dict(options or {}))
+
+
+def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool = False, **options):
+    """Write ``brdf`` to ``path`` atomically; returns what was written (usually the table).
+
+    ``grid`` None means the table's own grid (or the format's native grid); a table whose
+    grid equals the target grid is copied, anything else is tabulated on it first.
+    """
     fmt = format_for(path, format)
+    fmt.ensure_available()
     try:
         fmt.validate_options(options)
     except BrdftabError as exc:
         raise BrdftabError(f"{path}: {exc}") from None
     check_target(path, overwrite)
-    table = (fmt.prepare or _default_prepare)(brdf, grid)
+    from ..table import Table
+
+    requested = grid if grid is not None else (brdf.grid if isinstance(brdf, Table) else None)
+    payload = prepare(fmt, brdf, target_grid(fmt, requested, options), options)
     with atomic_path(path, overwrite=overwrite) as tmp:
         with deferred_signals():
-            fmt.write(table, tmp, **options)
-    return table
+            fmt.write(payload, tmp, **options)
+    return payload
 
 
-# Built-in formats register themselves on import.
-from . import netcdf  # noqa: E402,F401
+#: Format modules shipped with brdftab (each registers itself on import). A module whose
+#: optional library is missing must still import: it imports that library inside functions.
+BUILTIN = ("netcdf",)
+
+for _name in BUILTIN:
+    importlib.import_module(f"{__name__}.{_name}")
