@@ -3,7 +3,9 @@
 ``brdf.eval(wi, wo, wavelengths=None)`` takes unit direction vectors ``wi``, ``wo`` of any
 broadcastable leading shape (trailing axis 3; pointing away from the surface; normal +z) and
 returns ``ndarray[..., n_channels]``. The result is 0 wherever either direction is at or below
-the horizon (z <= ``HORIZON`` = 1e-12, so θ = 90° exactly counts as the horizon). Analytic
+the horizon (z <= ``HORIZON`` = 1e-12, so θ = 90° exactly counts as the horizon). One input
+rule holds for every BRDF, model or table: directions are normalized on entry (a zero vector
+is an error), and a non-finite component gives NaN, never 0. Analytic
 models (:mod:`brdftab.models`) and tables (:class:`brdftab.table.Table`) are both
 :class:`BRDF` objects.
 
@@ -34,6 +36,22 @@ EVAL_CHUNK = 1 << 16
 HORIZON = 1e-12
 
 
+def _unit(w, name):
+    """Directions normalized on entry (exactly unit ones are left untouched); non-finite rows
+    stay non-finite (they evaluate to NaN); a zero vector is an error."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        norm = np.sqrt(np.einsum("ij,ij->i", w, w))
+        off = np.abs(norm - 1.0) > 1e-12
+    if not off.any():
+        return w
+    if np.any(norm[off] == 0):
+        raise ParameterError(name, "a direction has zero length")
+    w = w.copy()
+    with np.errstate(invalid="ignore", over="ignore"):
+        w[off] /= norm[off, None]
+    return w
+
+
 class BRDF:
     """Base class of everything that evaluates a BRDF. Subclasses implement :meth:`_eval`."""
 
@@ -41,6 +59,15 @@ class BRDF:
     layout: Layout = Layout()
     isotropic: bool = True
     reciprocal: bool = True
+    #: Declared: directional albedo ≤ 1 for every incident direction (checked by the contract
+    #: test and the energy check). Off unless a model says so.
+    energy_conserving: bool = False
+
+    @property
+    def lobe_width(self) -> float | None:
+        """Angular width [rad, roughly] of the narrowest lobe, or None for smooth BRDFs; a hint
+        for quadrature that must place nodes on peaked lobes."""
+        return None
 
     @property
     def channels(self):
@@ -70,16 +97,20 @@ class BRDF:
         lam = self.layout.resolve(wavelengths)
         n = self.layout.n_out(lam)
         lead = wi.shape[:-1]
-        wi = wi.reshape(-1, 3)
-        wo = wo.reshape(-1, 3)
+        wi = _unit(wi.reshape(-1, 3), "wi")
+        wo = _unit(wo.reshape(-1, 3), "wo")
         out = np.zeros((wi.shape[0], n))
-        above = np.flatnonzero((wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
+        finite = np.isfinite(wi).all(axis=1) & np.isfinite(wo).all(axis=1)
+        out[~finite] = np.nan
+        with np.errstate(invalid="ignore"):
+            above = np.flatnonzero(finite & (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
         # Bounded chunks keep the temporaries of long evaluations to a few tens of MB.
-        for start in range(0, above.size, EVAL_CHUNK):
-            sel = above[start:start + EVAL_CHUNK]
-            if sel.size == wi.shape[0]:
-                sel = slice(None)
-            out[sel] = self._eval(wi[sel], wo[sel], lam, n)
+        with np.errstate(all="ignore"):
+            for start in range(0, above.size, EVAL_CHUNK):
+                sel = above[start:start + EVAL_CHUNK]
+                if sel.size == wi.shape[0]:
+                    sel = slice(None)
+                out[sel] = self._eval(wi[sel], wo[sel], lam, n)
         return out.reshape(lead + (n,))
 
     def _eval(self, wi, wo, lam, n) -> np.ndarray:

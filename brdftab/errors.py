@@ -37,3 +37,8 @@ class FormatError(BrdftabError):
 
 class ValidationError(BrdftabError):
     """A table failed a check that export requires."""
+
+
+class BrdftabWarning(UserWarning):
+    """Something a user should know that does not stop the work (e.g. queries outside a
+    table's domain evaluated to NaN)."""

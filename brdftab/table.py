@@ -13,9 +13,21 @@ Layout of the dataset (also the netCDF layout, see ``formats/netcdf.md``):
 
 A :class:`Table` is a :class:`~brdftab.brdf.BRDF`: it evaluates at any (wi, wo) by
 multilinear interpolation in its grid's index space — linear in the warped coordinate of
-warped axes (MERL θh), periodic across the seam of periodic axes (φd, φh), clamped at the
-ends of the others, after folding φd by the table's declared fold. At its own nodes it
-returns the stored values exactly.
+warped axes (MERL θh), periodic across the seam of periodic axes (φd, φh), after folding φd
+by the table's declared fold. At its own nodes it returns the stored values exactly.
+
+Three rules keep interpolation honest:
+
+* **Only valid nodes take part.** Nodes whose directions lie below the horizon (their stored
+  0 is not data) and *missing* samples (values outside the CF ``valid_min``/``valid_max`` of
+  the ``brdf`` variable, e.g. MERL's negative markers) are left out and the weights of the
+  remaining corners renormalized. A query whose corners are all missing returns NaN.
+* **Outside the domain is not an answer.** A query outside the grid's domain (see
+  :mod:`brdftab.grids.axis`) returns NaN with one warning per table (``outside = "nan"``,
+  the default), raises (``"raise"``) or takes the nearest node (``"clamp"``).
+* **Nothing is loaded before it is needed.** A table read from a file keeps its values on
+  disk until it is evaluated; loading refuses honestly when the values would not fit in
+  memory (:func:`check_memory`).
 """
 
 from __future__ import annotations
@@ -24,6 +36,7 @@ import datetime as _dt
 import itertools
 import json
 import os
+import warnings
 
 import numpy as np
 import xarray as xr
@@ -31,10 +44,13 @@ import xarray as xr
 from ._version import __version__
 from .brdf import BRDF
 from .channels import Layout
-from .errors import BrdftabError, FormatError, ParameterError
+from .errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
 from .grids import Grid, check_grid, grid_from_dataset
 
-__all__ = ["Table", "tabulate", "DEFAULT_CHUNK", "DIRECTION_CONVENTION", "PHI_CONVENTION"]
+__all__ = ["Table", "tabulate", "make_table", "check_memory", "OUTSIDE_MODES", "DEFAULT_CHUNK", "DIRECTION_CONVENTION",
+           "PHI_CONVENTION"]
+
+OUTSIDE_MODES = ("nan", "raise", "clamp")
 
 #: Samples evaluated per chunk; bounds the temporaries of a tabulation (~tens of MB).
 DEFAULT_CHUNK = 1 << 16
@@ -49,9 +65,14 @@ PHI_CONVENTION = ("Rusinkiewicz: h = normalize(wi + wo), d = Ry(-theta_h) Rz(-ph
 
 
 class Table(BRDF):
-    """A tabulated BRDF backed by an ``xarray.Dataset`` (see the module docstring)."""
+    """A tabulated BRDF backed by an ``xarray.Dataset`` (see the module docstring).
 
-    def __init__(self, ds: xr.Dataset):
+    ``outside`` chooses what a query outside the grid's domain gives: ``"nan"`` (default,
+    with one warning), ``"raise"`` (:class:`~brdftab.errors.BrdftabError` naming the domain)
+    or ``"clamp"`` (the nearest node).
+    """
+
+    def __init__(self, ds: xr.Dataset, outside: str = "nan"):
         if "brdf" not in ds.data_vars:
             raise FormatError("not a brdftab table: no variable 'brdf'")
         if "parameterization" not in ds.attrs:
@@ -69,21 +90,69 @@ class Table(BRDF):
             if set(var.dims) != set(expected):
                 raise FormatError(f"table variable 'brdf' has dims {var.dims}, expected {expected}")
             var = var.transpose(*expected)
+        if chan_dim not in ds.variables:
+            raise FormatError(f"table has no '{chan_dim}' coordinate")
         self.ds = ds
-        self._values = np.asarray(var.values)
+        self._var = var
+        self._values = None
+        self._missing = False  # not computed yet (None: no missing samples)
         if chan_dim == "wavelength":
-            self.layout = Layout(None, np.asarray(ds["wavelength"].values, float))
+            lam = np.asarray(ds["wavelength"].values, float)
+            if lam.ndim != 1 or not np.all(np.isfinite(lam)) or np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
+                raise FormatError("coordinate 'wavelength' must hold positive, strictly increasing wavelengths [nm]")
+            self.layout = Layout(None, lam)
         else:
             self.layout = Layout(tuple(str(c) for c in ds["channel"].values))
         self.name = str(ds.attrs.get("model", "table"))
         # Without the attribute only an isotropic parameterization implies isotropy.
         self.isotropic = _flag(ds.attrs.get("isotropic", int(ds.attrs["parameterization"] == "rusinkiewicz")))
         self.reciprocal = _flag(ds.attrs.get("reciprocal", 0))
+        self.outside = outside
+        self._warned = False
+
+    @property
+    def outside(self) -> str:
+        return self._outside
+
+    @outside.setter
+    def outside(self, mode: str):
+        if mode not in OUTSIDE_MODES:
+            raise ParameterError("outside", f"expected one of {', '.join(map(repr, OUTSIDE_MODES))}, got {mode!r}")
+        self._outside = mode
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the stored samples (whether or not they are loaded)."""
+        return int(np.prod(self._var.shape, dtype=float) * self._var.dtype.itemsize)
 
     @property
     def values(self) -> np.ndarray:
-        """The stored samples, shape ``grid.shape + (n_channels,)``."""
+        """The stored samples, shape ``grid.shape + (n_channels,)`` (loaded on first use)."""
+        if self._values is None:
+            check_memory(self.nbytes, f"the table {self.describe()}", peak=1.0)
+            self._values = np.asarray(self._var.values)
         return self._values
+
+    @property
+    def missing(self) -> np.ndarray | None:
+        """Bool mask of missing samples (shape of :attr:`values`), or None when there are none.
+
+        A sample is missing when it lies below the ``valid_min`` or above the ``valid_max``
+        attribute of the ``brdf`` variable (CF); e.g. MERL's negative "no data" markers.
+        """
+        if self._missing is False:
+            self._missing = _missing_mask(self.values, self._var.attrs)
+        return self._missing
+
+    def iter_chunks(self, max_bytes: int = 64 << 20):
+        """Yield the samples in slabs along the first axis without loading them all."""
+        if self._values is not None:
+            yield self._values
+            return
+        n0 = self._var.shape[0]
+        per = max(1, int(max_bytes // max(1, self.nbytes // max(1, n0))))
+        for i in range(0, n0, per):
+            yield np.asarray(self._var[i:i + per].values)
 
     @property
     def parameters(self) -> dict:
@@ -95,9 +164,38 @@ class Table(BRDF):
     def describe(self) -> str:
         return f"table of {self.name} on {self.grid.describe()}"
 
+    def _interp_data(self):
+        """``(values, valid)`` used for interpolation (see :func:`_horizon_ghosts`); cached."""
+        cached = getattr(self, "_interp", None)
+        if cached is not None:
+            return cached
+        values = self.values
+        above = self.grid.node_above_horizon()
+        miss = self.missing
+        if above.all():
+            valid = None if miss is None else ~miss
+        else:
+            values, above = _horizon_ghosts(values, above, self.grid, miss)
+            valid = np.broadcast_to(above[..., None], values.shape)
+            if miss is not None:
+                valid = valid & ~miss
+        self._interp = (values, valid)
+        return self._interp
+
     def _eval(self, wi, wo, lam, n):
-        idx = self.grid.fractional_index(wi, wo, isotropic=self.isotropic)
-        out = _multilinear(self._values, idx, self.grid.axes)
+        idx, outside = self.grid.locate(wi, wo, isotropic=self.isotropic)
+        values, valid = self._interp_data()
+        out = _multilinear(values, idx, self.grid.axes, valid)
+        if outside.any() and self._outside != "clamp":
+            if self._outside == "raise":
+                raise BrdftabError(f"{int(outside.sum())} direction pair(s) outside the domain of the {self.describe()}"
+                                   f" ({self.grid.domain_text()})")
+            out[outside] = np.nan
+            if not self._warned:
+                self._warned = True
+                warnings.warn(f"{int(outside.sum())} direction pair(s) lie outside the domain of the "
+                              f"{self.describe()} ({self.grid.domain_text()}); they evaluate to NaN",
+                              BrdftabWarning, stacklevel=4)
         if lam is not None and self.spectral:
             stored = self.layout.wavelengths
             if not (stored.shape == lam.shape and np.array_equal(stored, lam)):
@@ -107,17 +205,106 @@ class Table(BRDF):
         return out
 
 
+#: Axes along which below-horizon nodes get ghost values, in order of preference: the axis
+#: that crosses the horizon most directly in each parameterization.
+GHOST_AXES = ("theta_d", "theta_o", "dtheta_o", "theta_i", "theta_h")
+
+
+def _horizon_ghosts(values, above, grid, missing=None):
+    """Values with *ghost* samples at below-horizon nodes next to the horizon, for interpolation.
+
+    A below-horizon node stores 0 (f is 0 there by definition), which is not data: linear
+    interpolation towards it would pull a table down within a cell of the horizon. Each
+    below-horizon node whose two nearer neighbours along a ghost axis are valid gets the
+    quadratic extrapolation of the three nearer valid nodes (linear where there are only two;
+    clamped at 0), and counts as valid for interpolation. The axes
+    are tried in turn (θd, then θh for Rusinkiewicz grids; θo, θi for gonio grids), each pass
+    seeing the ghosts of the one before. The stored table is unchanged.
+    Returns ``(values, valid_nodes)``.
+    """
+    vals = np.array(values, dtype=float, copy=True)
+    ok = np.array(above, copy=True)
+    for name in GHOST_AXES:
+        node_ok = ok if missing is None else (ok & ~missing.any(axis=-1))
+        if name not in grid.dims:
+            continue
+        a = grid.dims.index(name)
+        x = grid.axes[a].values
+        n = x.size
+        if n < 3:
+            continue
+        for step in (1, -1):  # ghosts above (θ increasing) and below the valid run
+            idx_g = np.arange(n)
+            i1, i2, i3 = idx_g - step, idx_g - 2 * step, idx_g - 3 * step
+            inside = (i1 >= 0) & (i1 < n) & (i2 >= 0) & (i2 < n)
+            g, j1, j2 = idx_g[inside], i1[inside], i2[inside]
+            j3 = i3[inside]
+            has3 = (j3 >= 0) & (j3 < n)
+            j3 = np.clip(j3, 0, n - 1)
+            take = lambda arr, i: np.take(arr, i, axis=a)  # noqa: E731
+            cand = ~take(ok, g) & take(node_ok, j1) & take(node_ok, j2)
+            if not cand.any():
+                continue
+            shape = [1] * vals.ndim
+            shape[a] = g.size
+            xg, x1, x2, x3 = x[g], x[j1], x[j2], x[j3]
+            v1, v2, v3 = take(vals, j1), take(vals, j2), take(vals, j3)
+            # quadratic (Lagrange) through three valid nodes where there are three, else linear
+            lin = v1 + ((xg - x1) / (x1 - x2)).reshape(shape) * (v1 - v2)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                l1 = ((xg - x2) * (xg - x3) / ((x1 - x2) * (x1 - x3))).reshape(shape)
+                l2 = ((xg - x1) * (xg - x3) / ((x2 - x1) * (x2 - x3))).reshape(shape)
+                l3 = ((xg - x1) * (xg - x2) / ((x3 - x1) * (x3 - x2))).reshape(shape)
+                quad = l1 * v1 + l2 * v2 + l3 * v3
+            use3 = has3.reshape(shape) & take(node_ok, j3)[..., None]
+            ghost = np.maximum(np.where(use3, quad, lin), 0.0)
+            cur = take(vals, g)
+            new = np.where(cand[..., None], ghost, cur)
+            sl = [slice(None)] * vals.ndim
+            sl[a] = g
+            vals[tuple(sl)] = new
+            okv = take(ok, g) | cand
+            sl_ok = [slice(None)] * ok.ndim
+            sl_ok[a] = g
+            ok[tuple(sl_ok)] = okv
+    return vals, ok
+
+
+def _missing_mask(values, attrs):
+    lo = attrs.get("valid_min")
+    hi = attrs.get("valid_max")
+    vr = attrs.get("valid_range")
+    if vr is not None and np.size(vr) == 2:
+        lo, hi = np.asarray(vr, float).ravel()
+    mask = None
+    with np.errstate(invalid="ignore"):
+        if lo is not None:
+            mask = values < float(np.asarray(lo).ravel()[0])
+        if hi is not None:
+            m = values > float(np.asarray(hi).ravel()[0])
+            mask = m if mask is None else (mask | m)
+    if mask is None or not mask.any():
+        return None
+    return mask
+
+
 def _flag(v) -> bool:
     if isinstance(v, str):
         return v.strip().lower() in ("1", "true", "yes")
     return bool(v)
 
 
-def _multilinear(values, idx, axes):
-    """Interpolate ``values[grid..., C]`` at fractional indices ``idx`` (one array per axis)."""
+def _multilinear(values, idx, axes, valid=None):
+    """Interpolate ``values[grid..., C]`` at fractional indices ``idx`` (one array per axis).
+
+    With ``valid`` (bool, shape of ``values``) only valid corners take part and their weights
+    are renormalized; where no corner with weight is valid the result is NaN if any of them
+    is missing data, else the plain (stored) interpolation — corners below the horizon only.
+    """
     m = idx[0].shape[0]
     c = values.shape[-1]
     flat = values.reshape(-1, c)
+    vflat = None if valid is None else valid.reshape(-1, c)
     strides = np.cumprod((values.shape[:-1] + (1,))[::-1])[::-1][1:]
     lows, highs, fracs = [], [], []
     for ax, x in zip(axes, idx):
@@ -134,6 +321,9 @@ def _multilinear(values, idx, axes):
         highs.append(i1)
         fracs.append(f)
     out = np.zeros((m, c))
+    if vflat is not None:
+        plain = np.zeros((m, c))
+        den = np.zeros((m, c))
     for corner in itertools.product((0, 1), repeat=len(axes)):
         w = np.ones(m)
         pos = np.zeros(m, dtype=np.intp)
@@ -142,8 +332,38 @@ def _multilinear(values, idx, axes):
             pos += (highs[a] if bit else lows[a]) * strides[a]
         if not w.any():
             continue
-        out += w[:, None] * flat[pos]
-    return out
+        v = flat[pos]
+        if vflat is None:
+            out += w[:, None] * v
+            continue
+        ok = vflat[pos]
+        wv = np.where(ok, w[:, None], 0.0)
+        out += wv * np.where(ok, v, 0.0)
+        den += wv
+        plain += w[:, None] * np.where(ok | (v >= 0), v, 0.0)
+    if vflat is None:
+        return out
+    with np.errstate(invalid="ignore", divide="ignore"):
+        res = out / den
+    none = den <= 0
+    if none.any():
+        # no valid corner: all below the horizon (stored zeros) or some missing (NaN)
+        res = np.where(none, plain, res)
+        res[none & ~_all_horizon(flat, vflat, lows, highs, fracs, strides, m, c)] = np.nan
+    return res
+
+
+def _all_horizon(flat, vflat, lows, highs, fracs, strides, m, c):
+    """True where every weighted corner is a below-horizon node (stored 0, not missing)."""
+    ok = np.ones((m, c), bool)
+    for corner in itertools.product((0, 1), repeat=len(lows)):
+        w = np.ones(m)
+        pos = np.zeros(m, dtype=np.intp)
+        for a, bit in enumerate(corner):
+            w *= fracs[a] if bit else (1.0 - fracs[a])
+            pos += (highs[a] if bit else lows[a]) * strides[a]
+        ok &= (w[:, None] == 0) | (flat[pos] == 0)
+    return ok
 
 
 def _interp_last(out, stored, lam):
@@ -231,17 +451,43 @@ def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, pro
     return Table(ds)
 
 
-def _check_memory(grid: Grid, n: int, dtype) -> None:
-    """Refuse a table larger than this machine's memory before allocating it."""
-    need = float(grid.size) * n * np.dtype(dtype).itemsize
+#: Peak memory of a tabulation relative to its output table, measured with
+#: ``benchmarks/bench_tabulate.py`` (float64 output 1.2x, float32 1.66x), plus the chunk
+#: temporaries (~30 MiB at the default chunk size).
+TABULATE_PEAK = {8: 1.25, 4: 1.7}
+CHUNK_OVERHEAD = 64 << 20
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to this process now (MemAvailable), or None if unknown."""
     try:
-        have = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    try:
+        return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_AVPHYS_PAGES")
     except (ValueError, OSError, AttributeError):  # pragma: no cover - non-POSIX
-        return
-    if need > 0.8 * have:
-        raise BrdftabError(f"the table would need {need / 2**30:.3g} GiB ({grid.describe()} x {n} channels x "
-                           f"{np.dtype(dtype).itemsize} bytes), more than this machine's {have / 2**30:.3g} GiB "
-                           "of memory allows; use a coarser grid")
+        return None
+
+
+def check_memory(nbytes: float, what: str, peak: float = 1.25) -> None:
+    """Refuse work whose measured peak (``peak`` × ``nbytes`` + chunk temporaries) exceeds the
+    memory available now; the message says how much is needed and what to do."""
+    have = available_memory()
+    need = float(nbytes) * peak + CHUNK_OVERHEAD
+    if have is not None and need > have:
+        raise BrdftabError(f"{what} needs about {need / 2**30:.3g} GiB of memory ({nbytes / 2**30:.3g} GiB of samples);"
+                           f" only {have / 2**30:.3g} GiB is available; use a coarser grid or fewer channels")
+
+
+def _check_memory(grid: Grid, n: int, dtype) -> None:
+    """Refuse a tabulation whose measured peak exceeds the available memory, before allocating."""
+    item = np.dtype(dtype).itemsize
+    check_memory(float(grid.size) * n * item, f"tabulating {grid.describe()} x {n} channels as {np.dtype(dtype)}",
+                 peak=TABULATE_PEAK.get(item, 1.7))
 
 
 def _progress(total: int, progress: bool | None):

@@ -71,7 +71,7 @@ CASES = {
         ["model.n"],
     ),
     # out of range
-    "alpha-zero": (_spec_text(model=_microfacet("alpha = 0\n")), ["model.alpha", "> 0"]),
+    "alpha-zero": (_spec_text(model=_microfacet("alpha = 0\n")), ["model.alpha", ">= 1e-06"]),
     "alpha-negative": (_spec_text(model=_microfacet("alpha = -0.1\n")), ["model.alpha", "-0.1"]),
     "albedo-negative": (_spec_text(model='[model]\nname = "lambert"\nalbedo = -0.2\n'), ["model.albedo", "-0.2"]),
     "albedo-above-one": (_spec_text(model='[model]\nname = "lambert"\nalbedo = 1.5\n'), ["model.albedo", "1.5"]),

@@ -25,7 +25,7 @@ __all__ = ["Sum", "Scale"]
 class Sum(Model):
     name = "sum"
     summary = "Sum of terms, f = Σ f_k."
-    reference = "F. E. Nicodemus et al., NBS Monograph 160 (1977)."
+    reference = "Nicodemus1977"
     params = (Param("terms", "brdfs", "The BRDFs to add ([[model.terms]] tables in a spec).", units=""),)
 
     def _setup(self, terms):
@@ -33,6 +33,12 @@ class Sum(Model):
         self.layout = combine_layouts(t.layout for t in terms)
         self.isotropic = all(t.isotropic for t in terms)
         self.reciprocal = all(t.reciprocal for t in terms)
+        # a sum of energy-conserving terms may exceed 1: nothing is claimed
+
+    @property
+    def lobe_width(self):
+        widths = [t.lobe_width for t in self.terms if t.lobe_width is not None]
+        return min(widths) if widths else None
 
     def _eval(self, wi, wo, lam, n):
         out = self.terms[0]._eval(wi, wo, lam, n)
@@ -44,7 +50,7 @@ class Sum(Model):
 class Scale(Model):
     name = "scale"
     summary = "A term multiplied by a per-channel or spectral factor, f = s · f_term."
-    reference = "F. E. Nicodemus et al., NBS Monograph 160 (1977)."
+    reference = "Nicodemus1977"
     params = (
         Param("factor", "channel", "Multiplier s (per channel or spectrum).", minimum=0.0),
         Param("term", "brdf", "The BRDF to scale ([model.term] table in a spec).", units=""),
@@ -56,6 +62,11 @@ class Scale(Model):
         self.layout = combine_layouts([factor.layout, term.layout])
         self.isotropic = term.isotropic
         self.reciprocal = term.reciprocal
+        self.energy_conserving = term.energy_conserving and bool(np.all(factor.values <= 1.0))
+
+    @property
+    def lobe_width(self):
+        return self.term.lobe_width
 
     def _eval(self, wi, wo, lam, n):
         return self.term._eval(wi, wo, lam, n) * np.asarray(self.factor.at(lam, n))[None, :]

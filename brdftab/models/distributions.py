@@ -23,8 +23,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.special import erfc
 
-__all__ = ["D_METHODS", "LAMBDA_METHODS", "d_beckmann", "d_ggx", "lambda_beckmann", "lambda_ggx",
-           "microfacet_d", "smith_lambda"]
+__all__ = ["d_beckmann", "d_ggx", "lambda_beckmann", "lambda_ggx"]
 
 _SQRT_PI = np.sqrt(np.pi)
 
@@ -83,19 +82,3 @@ def lambda_ggx(w, alpha_x, alpha_y=None):
     alpha_y = alpha_x if alpha_y is None else alpha_y
     t2 = _alpha_tan2(w, alpha_x, alpha_y)
     return 0.5 * (np.sqrt(1.0 + t2) - 1.0)
-
-
-#: Normal distributions by name.
-D_METHODS = {"beckmann": d_beckmann, "ggx": d_ggx}
-#: Smith Λ functions by distribution name.
-LAMBDA_METHODS = {"beckmann": lambda_beckmann, "ggx": lambda_ggx}
-
-
-def microfacet_d(h, alpha_x, alpha_y=None, method="ggx"):
-    """D(h) [sr⁻¹] by distribution name (``D_METHODS``)."""
-    return D_METHODS[method](h, alpha_x, alpha_y)
-
-
-def smith_lambda(w, alpha_x, alpha_y=None, method="ggx"):
-    """Smith Λ(w) by distribution name (``LAMBDA_METHODS``)."""
-    return LAMBDA_METHODS[method](w, alpha_x, alpha_y)

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FRESNEL_METHODS", "fresnel_amplitudes", "fresnel_complex", "fresnel_conductor", "fresnel_dielectric",
+__all__ = ["fresnel_amplitudes", "fresnel_complex", "fresnel_conductor", "fresnel_dielectric",
            "fresnel_schlick"]
 
 
@@ -88,11 +88,3 @@ def fresnel_schlick(cos_i, f0):
     """Schlick's approximation ``F0 + (1 − F0)(1 − cosθ)⁵``."""
     c = np.clip(cos_i, 0.0, 1.0)
     return f0 + (1.0 - f0) * (1.0 - c) ** 5
-
-
-#: Unpolarized Fresnel functions by name.
-FRESNEL_METHODS = {
-    "dielectric": fresnel_dielectric,
-    "conductor": fresnel_conductor,
-    "schlick": fresnel_schlick,
-}

@@ -19,7 +19,7 @@ __all__ = ["Lambert"]
 class Lambert(Model):
     name = "lambert"
     summary = "Ideal diffuse reflector, f = albedo / π."
-    reference = "J. H. Lambert, Photometria (1760); Nicodemus et al., NBS Monograph 160 (1977)."
+    reference = "Lambert1760; Nicodemus1977"
     params = (
         Param("albedo", "channel", "Directional-hemispherical reflectance ρ (per channel or spectrum).",
               default=1.0, minimum=0.0, maximum=1.0),
@@ -28,6 +28,7 @@ class Lambert(Model):
     def _setup(self, albedo):
         self.albedo = albedo
         self.layout = albedo.layout
+        self.energy_conserving = True
 
     def _eval(self, wi, wo, lam, n):
         rho = self.albedo.at(lam, n)

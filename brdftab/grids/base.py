@@ -1,0 +1,261 @@
+"""The grid base class, the grid-type registry, and building grids from specs and files."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..params import Param, suggest
+from .axis import LONG_NAMES, NODE_RULES
+
+__all__ = ["Grid", "GRIDS", "register", "grid_from_config", "grid_from_dataset", "COMMON_PARAMS",
+           "read_coordinate", "choice_attr"]
+
+#: Grid types by spec name (``[grid] type = ...``).
+GRIDS: dict = {}
+
+#: Keys every ``[grid]`` table accepts besides the type's own.
+COMMON_PARAMS = (
+    Param("wavelengths_nm", "float", "Wavelengths to sample a spectral model at [nm] (a list).", units="nm",
+          default=None, used_when="spectral models"),
+)
+
+
+def register(cls):
+    """Add a grid class to :data:`GRIDS` under ``cls.type_name`` (usable as a decorator)."""
+    GRIDS[cls.type_name] = cls
+    return cls
+
+
+class Grid:
+    """Base class: a tuple of axes plus conversions between indices and direction pairs.
+
+    Subclasses set ``type_name`` (spec name), ``summary``, ``params`` (the ``[grid]`` keys
+    they accept, as :class:`~brdftab.params.Param`), ``parameterizations`` (the table
+    attribute values they reconstruct) and implement ``from_config``, ``from_dataset``,
+    ``attrs``, ``_directions`` and ``_coordinates``.
+    """
+
+    type_name = ""
+    summary = ""
+    params: tuple = ()
+    parameterizations: tuple = ()
+    parameterization = "grid"
+    axes: tuple = ()
+
+    # -- shape ---------------------------------------------------------------------------------
+    @property
+    def dims(self) -> tuple:
+        return tuple(a.name for a in self.axes)
+
+    @property
+    def shape(self) -> tuple:
+        return tuple(len(a) for a in self.axes)
+
+    @property
+    def size(self) -> int:
+        return math.prod(self.shape)
+
+    @property
+    def coords(self) -> dict:
+        return {a.name: a.values for a in self.axes}
+
+    def attrs(self) -> dict:
+        """Dataset attributes that, with the coordinates, reconstruct this grid."""
+        raise NotImplementedError
+
+    def coord_attrs(self, name) -> dict:
+        ax = self.axes[self.dims.index(name)]
+        out = {"units": "rad", "long_name": LONG_NAMES.get(name, name), "node_rule": ax.rule}
+        if ax.period is None:
+            out["domain"] = np.asarray(ax.domain, float)
+        return out
+
+    # -- index <-> directions ------------------------------------------------------------------
+    def directions(self, start: int = 0, stop: int | None = None):
+        """``(wi, wo)`` of flat sample indices ``start..stop`` (C order), each ``(m, 3)``."""
+        stop = self.size if stop is None else stop
+        idx = np.unravel_index(np.arange(start, stop), self.shape)
+        return self._directions(idx)
+
+    def _directions(self, idx):
+        raise NotImplementedError
+
+    def _coordinates(self, wi, wo, isotropic: bool = False) -> list:
+        """Per-axis coordinates [rad] of direction pairs (folds applied)."""
+        raise NotImplementedError
+
+    def locate(self, wi, wo, isotropic: bool = False):
+        """``(fractional indices per axis, outside mask)`` of direction pairs ``[..., 3]``."""
+        coords = self._coordinates(wi, wo, isotropic)
+        outside = np.zeros(np.shape(coords[0]), bool)
+        for a, x in zip(self.axes, coords):
+            outside |= a.outside(x)
+        return [a.fractional_index(x) for a, x in zip(self.axes, coords)], outside
+
+    def fractional_index(self, wi, wo, isotropic: bool = False):
+        """Fractional index per axis of direction pairs ``[..., 3]`` (list of arrays)."""
+        return self.locate(wi, wo, isotropic)[0]
+
+    def node_above_horizon(self) -> np.ndarray:
+        """Bool array ``shape``: True where both directions of the node are above the horizon.
+
+        Below-horizon nodes hold no data (f is 0 there by definition); interpolation leaves
+        them out. Computed once per grid, in chunks.
+        """
+        cached = getattr(self, "_above", None)
+        if cached is not None:
+            return cached
+        from ..brdf import HORIZON
+
+        out = np.empty(self.size, bool)
+        step = 1 << 18
+        for s in range(0, self.size, step):
+            wi, wo = self.directions(s, min(s + step, self.size))
+            out[s:s + wi.shape[0]] = (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON)
+        out = out.reshape(self.shape)
+        self._above = out
+        return out
+
+    def domain_text(self) -> str:
+        return ", ".join(a.domain_text() for a in self.axes if a.period is None)
+
+    def equals(self, other) -> bool:
+        """Same parameterization, conventions and node coordinates (values can be copied)."""
+        return (type(self) is type(other) and self.attrs() == other.attrs()
+                and len(self.axes) == len(other.axes)
+                and all(a.equals(b) for a, b in zip(self.axes, other.axes)))
+
+    def describe(self) -> str:
+        return f"{self.attrs().get('grid', self.parameterization)} " + " x ".join(
+            f"{a.name}[{len(a)}]" for a in self.axes)
+
+    # -- construction --------------------------------------------------------------------------
+    @classmethod
+    def from_config(cls, values: dict) -> "Grid":
+        """Build from validated ``[grid]`` values (parameter names, angles in radians)."""
+        raise NotImplementedError
+
+    @classmethod
+    def from_dataset(cls, ds, attrs: dict) -> "Grid":
+        raise NotImplementedError
+
+
+def _parse_keys(cls, cfg: dict) -> dict:
+    declared = tuple(cls.params) + COMMON_PARAMS
+    by_key = {p.spec_key: p for p in declared}
+    values = {}
+    for key, raw in cfg.items():
+        if key == "type":
+            continue
+        p = by_key.get(key)
+        if p is None:
+            valid = ["type", *by_key]
+            raise ParameterError(key, f"unknown key for a '{cls.type_name}' grid{suggest(key, valid)}; valid: "
+                                 f"{', '.join(sorted(valid))}")
+        if p.name == "wavelengths_nm":
+            continue  # read by the spec loader (the spectral axis)
+        try:
+            values[p.name] = p.convert(raw)
+        except ParameterError as exc:
+            raise ParameterError(exc.key if exc.key.startswith(key) else key, exc.detail) from None
+    for p in cls.params:
+        if p.name not in values and p.required:
+            raise ParameterError(p.spec_key, f"missing: expected {p.expected()}")
+    return values
+
+
+def grid_from_config(cfg: dict) -> Grid:
+    """Build a grid from a ``[grid]`` table (angles in degrees under ``*_deg`` keys).
+
+    ``wavelengths_nm`` is allowed in the table (the spectral axis); it is read by the caller.
+    Raises :class:`ParameterError` naming the offending key.
+    """
+    kind = cfg.get("type")
+    if not isinstance(kind, str) or kind not in GRIDS:
+        raise ParameterError("type", f"expected one of {', '.join(map(repr, GRIDS))}, got {kind!r}"
+                             f"{suggest(kind, GRIDS)}")
+    cls = GRIDS[kind]
+    values = _parse_keys(cls, cfg)
+    try:
+        return cls.from_config(values)
+    except ParameterError as exc:
+        # axis errors name the axis; the spec key of an explicit list is <axis>_deg
+        if exc.key in LONG_NAMES and f"{exc.key}_deg" in cfg:
+            raise ParameterError(f"{exc.key}_deg", exc.detail) from None
+        raise
+
+
+def grid_from_dataset(ds) -> Grid:
+    """Reconstruct and check the grid of a stored table from its coordinates and attributes.
+
+    Raises :class:`ParameterError` naming the attribute or coordinate that is missing, not
+    finite, not strictly increasing, in unknown units, outside its range, or different from
+    what the declared grid produces.
+    """
+    attrs = dict(ds.attrs)
+    p = attrs.get("parameterization")
+    for cls in GRIDS.values():
+        if p in cls.parameterizations:
+            return cls.from_dataset(ds, attrs)
+    known = sorted({x for c in GRIDS.values() for x in c.parameterizations})
+    raise ParameterError("parameterization", f"unknown table parameterization {p!r}{suggest(p, known)}; known: "
+                         f"{', '.join(known)}")
+
+
+_DEGREE_UNITS = ("degree", "degrees", "deg", "degree_east", "degrees_east", "arc_degree")
+_RADIAN_UNITS = ("rad", "radian", "radians")
+
+
+def read_coordinate(ds, name: str) -> tuple:
+    """``(values [rad], node rule or None, domain or None)`` of coordinate ``name``, checked."""
+    if name not in ds.variables:
+        raise ParameterError(name, f"missing coordinate '{name}'")
+    var = ds[name]
+    if var.ndim != 1:
+        raise ParameterError(name, f"coordinate '{name}' must be one-dimensional")
+    if var.dtype.kind not in "fiu":
+        raise ParameterError(name, f"coordinate '{name}' must be numeric, not {var.dtype}")
+    vals = np.asarray(var.values, float)
+    units = str(var.attrs.get("units", "")).strip().lower()
+    if units in _DEGREE_UNITS:
+        vals = np.radians(vals)
+        scale = np.pi / 180
+    elif units in _RADIAN_UNITS:
+        scale = 1.0
+    else:
+        raise ParameterError(name, f"coordinate '{name}' has units {var.attrs.get('units')!r}; expected 'rad' "
+                             "or 'degree'")
+    if vals.size == 0 or not np.all(np.isfinite(vals)):
+        raise ParameterError(name, f"coordinate '{name}' must hold finite values")
+    if np.any(np.diff(vals) <= 0):
+        raise ParameterError(name, f"coordinate '{name}' must increase strictly")
+    rule = var.attrs.get("node_rule")
+    if rule is not None:
+        rule = str(rule)
+        if rule not in NODE_RULES:
+            raise ParameterError(name, f"coordinate '{name}': node_rule {rule!r} is not one of "
+                                 f"{', '.join(map(repr, NODE_RULES))}{suggest(rule, NODE_RULES)}")
+    domain = var.attrs.get("domain")
+    if domain is not None:
+        d = np.asarray(domain, float).ravel() * scale
+        if d.size != 2 or not np.all(np.isfinite(d)) or d[0] > d[1]:
+            raise ParameterError(name, f"coordinate '{name}': domain must be two finite increasing numbers")
+        domain = (float(d[0]), float(d[1]))
+    return vals, rule, domain
+
+
+def choice_attr(attrs: dict, key: str, choices, default=None) -> str:
+    """An enumerated table attribute, checked against its known values."""
+    if key not in attrs:
+        if default is None:
+            raise ParameterError(key, f"missing attribute '{key}' (one of {', '.join(map(repr, choices))})")
+        return default
+    value = attrs[key]
+    value = value.item() if hasattr(value, "item") else value
+    if not isinstance(value, str) or value not in choices:
+        raise ParameterError(key, f"attribute '{key}' = {value!r} is not one of {', '.join(map(repr, choices))}"
+                             f"{suggest(value, choices) if isinstance(value, str) else ''}")
+    return value

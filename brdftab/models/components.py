@@ -1,0 +1,327 @@
+"""Microfacet components: normal distributions D, shadowing–masking G and Fresnel F.
+
+Each component is a small class with declared parameters (:class:`~brdftab.params.Param`),
+registered by kind in :data:`COMPONENTS` — ``"distribution"``, ``"shadowing"``, ``"fresnel"``
+— so every microfacet-like model composes the same parts (after Mitsuba 3's
+``MicrofacetDistribution``: one distribution object with ``D``, ``G1``/``Λ``, ``sample``,
+reused by every microfacet BSDF; Fresnel a free function wrapped by a component here).
+A new D, G or F is one class here or in its own module, registered with :func:`register`.
+
+* A **distribution** is built from the roughness parameters and offers ``D(h)`` [sr⁻¹]
+  (area-normalized: ∫ D cosθh dω = 1), ``lambda_(w)`` (exact Smith Λ), ``G1(w)`` and
+  ``sample(u1, u2)`` / ``pdf(h)`` (cosθh-weighted normal sampling).
+* A **shadowing** term offers ``G(wi, wo, h, dist)``.
+* A **Fresnel** term offers ``F(cos_d, lam, n_out)`` (per channel or per wavelength) and the
+  channel ``layout`` its parameters imply.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..channels import Layout, combine_layouts
+from ..errors import ParameterError
+from ..params import Param, parse_params, suggest
+from .distributions import d_beckmann, d_ggx, lambda_beckmann, lambda_ggx
+from .fresnel import fresnel_conductor, fresnel_dielectric, fresnel_schlick
+
+__all__ = ["COMPONENTS", "Component", "register", "get", "create", "Distribution", "Shadowing", "Fresnel"]
+
+#: Components by kind, then by name.
+COMPONENTS: dict = {"distribution": {}, "shadowing": {}, "fresnel": {}}
+
+
+def register(cls):
+    """Register a component class under ``COMPONENTS[cls.kind][cls.name]`` (a decorator)."""
+    COMPONENTS[cls.kind][cls.name] = cls
+    return cls
+
+
+def get(kind: str, name: str):
+    table = COMPONENTS[kind]
+    if not isinstance(name, str) or name not in table:
+        raise ParameterError(kind, f"unknown {kind} {name!r}{suggest(name, table)}; valid: {', '.join(table)}")
+    return table[name]
+
+
+def create(kind: str, name: str, **params):
+    return get(kind, name)(**params)
+
+
+class Component:
+    """Base of D, G and F components: declared ``params``, validated on construction."""
+
+    kind = ""
+    name = ""
+    summary = ""
+    reference = ""
+    params: tuple = ()
+
+    def __init__(self, **params):
+        self.values = parse_params(self.params, params, f"{self.kind} '{self.name}'")
+        self._setup(**self.values)
+
+    def _setup(self, **values):
+        pass
+
+    def to_json(self) -> dict:
+        return {p.name: p.to_json(self.values[p.name]) for p in self.params if self.values[p.name] is not None}
+
+
+# --------------------------------------------------------------------------------------------
+# Distributions
+
+#: Smallest roughness accepted: below it α² underflows in D's normalization (the model would
+#: not be finite).
+MIN_ALPHA = 1e-6
+
+
+class Distribution(Component):
+    """A microfacet normal distribution with roughness α (isotropic) or α_x, α_y."""
+
+    kind = "distribution"
+    params = (
+        Param("alpha", "float", "Isotropic roughness α (slope parameter of D).", default=None,
+              minimum=MIN_ALPHA, used_when="unless alpha_x/alpha_y"),
+        Param("alpha_x", "float", "Roughness along the frame's x axis (anisotropic).", default=None,
+              minimum=MIN_ALPHA, used_when="with alpha_y, instead of alpha"),
+        Param("alpha_y", "float", "Roughness along the frame's y axis (anisotropic).", default=None,
+              minimum=MIN_ALPHA, used_when="with alpha_x, instead of alpha"),
+    )
+
+    def _setup(self, alpha, alpha_x, alpha_y):
+        if alpha is not None and (alpha_x is not None or alpha_y is not None):
+            raise ParameterError("alpha", "give either alpha or alpha_x and alpha_y, not both")
+        if alpha is None:
+            if alpha_x is None or alpha_y is None:
+                raise ParameterError("alpha", "missing roughness: give alpha (isotropic) or alpha_x and alpha_y")
+            self.alpha_x, self.alpha_y = alpha_x, alpha_y
+        else:
+            self.alpha_x = self.alpha_y = alpha
+
+    @property
+    def isotropic(self) -> bool:
+        return self.alpha_x == self.alpha_y
+
+    def D(self, h):
+        raise NotImplementedError
+
+    def lambda_(self, w):
+        raise NotImplementedError
+
+    def G1(self, w):
+        """Smith masking of direction ``w`` (for normals on its side): 1 / (1 + Λ(w))."""
+        return 1.0 / (1.0 + self.lambda_(w))
+
+    def pdf(self, h):
+        """Density of :meth:`sample` over solid angle: D(h) cosθh."""
+        return self.D(h) * np.maximum(np.asarray(h)[..., 2], 0.0)
+
+    def sample(self, u1, u2):
+        """Normals distributed as D(h) cosθh from uniform numbers ``u1, u2`` in [0, 1)."""
+        raise NotImplementedError
+
+    def _stretch(self, tan_theta, phi):
+        # anisotropic α: sample isotropically with α = 1, stretch the slopes by (α_x, α_y)
+        sx = tan_theta * np.cos(phi) * self.alpha_x
+        sy = tan_theta * np.sin(phi) * self.alpha_y
+        h = np.stack([-sx, -sy, np.ones_like(sx)], axis=-1)
+        return h / np.linalg.norm(h, axis=-1, keepdims=True)
+
+
+@register
+class Beckmann(Distribution):
+    name = "beckmann"
+    summary = "Beckmann (Gaussian slopes) distribution, exact Smith Λ (erfc form)."
+    reference = "Beckmann1963; Walter2007; Heitz2014"
+
+    def D(self, h):
+        return d_beckmann(h, self.alpha_x, self.alpha_y)
+
+    def lambda_(self, w):
+        return lambda_beckmann(w, self.alpha_x, self.alpha_y)
+
+    def sample(self, u1, u2):
+        tan_theta = np.sqrt(-np.log1p(-np.asarray(u1, float)))
+        return self._stretch(tan_theta, 2 * np.pi * np.asarray(u2, float))
+
+
+@register
+class GGX(Distribution):
+    name = "ggx"
+    summary = "GGX (Trowbridge–Reitz) distribution, exact Smith Λ."
+    reference = "Trowbridge1975; Walter2007; Heitz2014"
+
+    def D(self, h):
+        return d_ggx(h, self.alpha_x, self.alpha_y)
+
+    def lambda_(self, w):
+        return lambda_ggx(w, self.alpha_x, self.alpha_y)
+
+    def sample(self, u1, u2):
+        u1 = np.asarray(u1, float)
+        tan_theta = np.sqrt(u1 / (1.0 - u1))
+        return self._stretch(tan_theta, 2 * np.pi * np.asarray(u2, float))
+
+
+# --------------------------------------------------------------------------------------------
+# Shadowing–masking. With h = normalize(wi + wo) both wi·h and wo·h equal |wi + wo|/2 > 0
+# above the horizon, so the χ⁺ factors of the Smith forms are 1 for reflection.
+
+
+class Shadowing(Component):
+    kind = "shadowing"
+
+    def G(self, wi, wo, h, dist: Distribution):
+        raise NotImplementedError
+
+
+@register
+class SmithSeparable(Shadowing):
+    name = "smith"
+    summary = "Separable Smith G = G1(wi) G1(wo)."
+    reference = "Smith1967; Walter2007"
+
+    def G(self, wi, wo, h, dist):
+        return 1.0 / ((1.0 + dist.lambda_(wi)) * (1.0 + dist.lambda_(wo)))
+
+
+@register
+class SmithHeightCorrelated(Shadowing):
+    name = "smith-height-correlated"
+    summary = "Height-correlated Smith G2 = 1 / (1 + Λ(wi) + Λ(wo))."
+    reference = "Heitz2014"
+
+    def G(self, wi, wo, h, dist):
+        return 1.0 / (1.0 + dist.lambda_(wi) + dist.lambda_(wo))
+
+
+@register
+class VGroove(Shadowing):
+    name = "v-groove"
+    summary = "Torrance–Sparrow V-groove G = min(1, 2 cosθh cosθi / (wo·h), 2 cosθh cosθo / (wo·h))."
+    reference = "Torrance1967; Blinn1977; Cook1982"
+
+    def G(self, wi, wo, h, dist=None):
+        hz = h[..., 2]
+        wo_h = np.sum(wo * h, axis=-1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g = np.minimum(1.0, 2.0 * hz * np.minimum(wo[..., 2], wi[..., 2]) / wo_h)
+        return np.where(wo_h > 0, np.maximum(g, 0.0), 0.0)
+
+
+@register
+class NoShadowing(Shadowing):
+    name = "none"
+    summary = "No shadowing: G = 1."
+
+    def G(self, wi, wo, h, dist=None):
+        return np.ones(np.broadcast_shapes(wi.shape, wo.shape)[:-1])
+
+
+# --------------------------------------------------------------------------------------------
+# Fresnel
+
+
+class Fresnel(Component):
+    kind = "fresnel"
+
+    @property
+    def layout(self) -> Layout:
+        vals = [v for v in self.values.values() if hasattr(v, "layout")]
+        return combine_layouts([v.layout for v in vals]) if vals else Layout()
+
+    def F(self, cos_d, lam, n):
+        """Reflectance at ``cos_d[M]`` (cosine to the microfacet normal), shape ``(M, n)`` or scalar."""
+        raise NotImplementedError
+
+
+@register
+class NoFresnel(Fresnel):
+    name = "none"
+    summary = "F = 1 (reflects everything; for tests and normalized lobes)."
+
+    def F(self, cos_d, lam, n):
+        return 1.0
+
+
+@register
+class Schlick(Fresnel):
+    name = "schlick"
+    summary = "Schlick's approximation F0 + (1 − F0)(1 − cosθ)⁵."
+    reference = "Schlick1994"
+    params = (Param("f0", "channel", "Reflectance at normal incidence (Schlick).", minimum=0.0, maximum=1.0),)
+
+    def F(self, cos_d, lam, n):
+        return fresnel_schlick(cos_d[:, None], self.values["f0"].at(lam, n))
+
+
+@register
+class Dielectric(Fresnel):
+    name = "dielectric"
+    summary = "Unpolarized Fresnel reflectance of a dielectric with real relative index n."
+    reference = "BornWolf1999"
+    params = (Param("n", "channel", "Real part of the relative refractive index.", minimum=0.0,
+                    exclusive_minimum=True),)
+
+    def F(self, cos_d, lam, n):
+        return fresnel_dielectric(cos_d[:, None], self.values["n"].at(lam, n))
+
+
+@register
+class Conductor(Fresnel):
+    name = "conductor"
+    summary = "Unpolarized Fresnel reflectance of an absorbing medium with index n + ik."
+    reference = "BornWolf1999"
+    params = (
+        Param("n", "channel", "Real part of the relative refractive index.", minimum=0.0, exclusive_minimum=True),
+        Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik).", minimum=0.0),
+    )
+
+    def F(self, cos_d, lam, n):
+        return fresnel_conductor(cos_d[:, None], self.values["n"].at(lam, n), self.values["k"].at(lam, n))
+
+
+# --------------------------------------------------------------------------------------------
+# Composing models: a model's flat spec keys for one component kind
+
+
+def component_param(kind: str, default: str, doc: str) -> Param:
+    """The ``choice`` parameter that selects a component of ``kind`` (choices: the registry)."""
+    return Param(kind, "choice", doc, default=default, choices=tuple(COMPONENTS[kind]))
+
+
+def member_params(kind: str, skip=()) -> tuple:
+    """Union of the parameters of every registered component of ``kind`` (first declaration
+    wins), with ``used_when`` saying which components use each."""
+    seen = {}
+    users = {}
+    for cname, cls in COMPONENTS[kind].items():
+        for p in cls.params:
+            if p.name in skip:
+                continue
+            seen.setdefault(p.name, p)
+            users.setdefault(p.name, []).append(cname)
+    out = []
+    for name, p in seen.items():
+        when = f"{kind} = " + " or ".join(repr(u) for u in users[name])
+        out.append(Param(p.name, p.kind, p.doc, p.units, None, p.minimum, p.maximum, p.exclusive_minimum, p.choices,
+                         p.angle, when))
+    return tuple(out)
+
+
+def build(kind: str, name: str, given: dict):
+    """Build component ``name`` of ``kind`` from the model's flat values ``given`` (None = not
+    given). A value given for a parameter the chosen component does not use is an error naming
+    the components that do."""
+    cls = get(kind, name)
+    own = {p.name for p in cls.params}
+    for key, value in given.items():
+        if value is not None and key not in own:
+            users = [c for c, k in COMPONENTS[kind].items() if any(p.name == key for p in k.params)]
+            raise ParameterError(key, f"only used with {kind} = {' or '.join(repr(u) for u in users)} "
+                                 f"({kind} is '{name}')")
+    for p in cls.params:
+        if p.required and given.get(p.name) is None:
+            raise ParameterError(p.name, f"required when {kind} = '{name}'")
+    return cls(**{k: v for k, v in given.items() if k in own and v is not None})
