@@ -154,6 +154,29 @@ class Table(BRDF):
         for i in range(0, n0, per):
             yield np.asarray(self._var[i:i + per].values)
 
+    def statistics(self) -> dict:
+        """Sample counts and range, streamed in slabs (a table need not fit in memory).
+
+        ``missing`` counts declared missing samples (see :attr:`missing`), which are left out
+        of ``min``/``max``/``negative``/``nonfinite``.
+        """
+        total = nonfinite = negative = missing = 0
+        lo, hi = np.inf, -np.inf
+        for chunk in self.iter_chunks():
+            total += chunk.size
+            miss = _missing_mask(chunk, self._var.attrs)
+            data = chunk[~miss] if miss is not None else chunk.ravel()
+            missing += 0 if miss is None else int(miss.sum())
+            fin = np.isfinite(data)
+            nonfinite += int(data.size - fin.sum())
+            good = data[fin]
+            negative += int((good < 0).sum())
+            if good.size:
+                lo, hi = min(lo, float(good.min())), max(hi, float(good.max()))
+        return {"dtype": str(self._var.dtype), "samples": int(total), "min": lo if np.isfinite(lo) else None,
+                "max": hi if np.isfinite(hi) else None, "nonfinite": nonfinite, "negative": negative,
+                "missing": missing}
+
     @property
     def parameters(self) -> dict:
         try:

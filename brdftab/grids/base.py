@@ -7,7 +7,7 @@ import math
 import numpy as np
 
 from ..errors import ParameterError
-from ..params import Param, suggest
+from ..params import Kind, Param, register_kind, suggest
 from .axis import LONG_NAMES, NODE_RULES
 
 __all__ = ["Grid", "GRIDS", "register", "grid_from_config", "grid_from_dataset", "COMMON_PARAMS",
@@ -16,9 +16,32 @@ __all__ = ["Grid", "GRIDS", "register", "grid_from_config", "grid_from_dataset",
 #: Grid types by spec name (``[grid] type = ...``).
 GRIDS: dict = {}
 
+class WavelengthsKind(Kind):
+    """A list of wavelengths [nm], positive and strictly increasing."""
+
+    name = "wavelengths"
+
+    def expected(self, p):
+        return "a list of positive wavelengths in nm, increasing"
+
+    def convert(self, p, value):
+        if (not isinstance(value, (list, tuple, np.ndarray)) or len(value) == 0
+                or any(isinstance(x, bool) or not isinstance(x, (int, float, np.number)) for x in value)):
+            raise ParameterError(p.name, f"expected {self.expected(p)}")
+        lam = np.asarray(value, float)
+        if not np.all(np.isfinite(lam)) or np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
+            raise ParameterError(p.name, f"expected {self.expected(p)}")
+        return lam
+
+    def to_json(self, value):
+        return np.asarray(value, float).tolist()
+
+
+register_kind(WavelengthsKind())
+
 #: Keys every ``[grid]`` table accepts besides the type's own.
 COMMON_PARAMS = (
-    Param("wavelengths_nm", "float", "Wavelengths to sample a spectral model at [nm] (a list).", units="nm",
+    Param("wavelengths_nm", "wavelengths", "Wavelengths to sample a spectral model at [nm] (a list).", units="nm",
           default=None, used_when="spectral models"),
 )
 
