@@ -87,23 +87,30 @@ class BRDF:
     def parameters(self) -> dict:
         return {}
 
-    def eval(self, wi, wo, wavelengths=None) -> np.ndarray:
+    def eval(self, wi, wo, wavelengths=None, *, assume_unit: bool = False) -> np.ndarray:
         """f(wi, wo) in sr⁻¹, shape ``broadcast(wi, wo).shape[:-1] + (n_channels,)``.
 
         ``wavelengths`` [nm] selects spectral evaluation (required for spectral BRDFs unless
         they carry default wavelengths; allowed for grey BRDFs, which broadcast).
+        ``assume_unit`` skips normalizing and the finiteness check, for callers whose
+        directions are unit and finite by construction (grid nodes).
         """
         wi, wo = as_directions(wi, wo)
         lam = self.layout.resolve(wavelengths)
         n = self.layout.n_out(lam)
         lead = wi.shape[:-1]
-        wi = _unit(wi.reshape(-1, 3), "wi")
-        wo = _unit(wo.reshape(-1, 3), "wo")
+        wi = wi.reshape(-1, 3)
+        wo = wo.reshape(-1, 3)
         out = np.zeros((wi.shape[0], n))
-        finite = np.isfinite(wi).all(axis=1) & np.isfinite(wo).all(axis=1)
-        out[~finite] = np.nan
-        with np.errstate(invalid="ignore"):
-            above = np.flatnonzero(finite & (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
+        if assume_unit:  # grid nodes: unit and finite by construction
+            above = np.flatnonzero((wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
+        else:
+            wi = _unit(wi, "wi")
+            wo = _unit(wo, "wo")
+            finite = np.isfinite(wi).all(axis=1) & np.isfinite(wo).all(axis=1)
+            out[~finite] = np.nan
+            with np.errstate(invalid="ignore"):
+                above = np.flatnonzero(finite & (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
         # Bounded chunks keep the temporaries of long evaluations to a few tens of MB.
         with np.errstate(all="ignore"):
             for start in range(0, above.size, EVAL_CHUNK):

@@ -159,9 +159,16 @@ class RusinkiewiczGrid(Grid):
     @classmethod
     def from_dataset(cls, ds, attrs):
         aniso = choice_attr(attrs, "parameterization", cls.parameterizations) == "rusinkiewicz-anisotropic"
-        spacing = choice_attr(attrs, "theta_h_spacing", ("linear", "merl", "explicit"))
         fold = choice_attr(attrs, "phi_d_fold", tuple(PHI_D_FOLDS))
-        pos = choice_attr(attrs, "sample_position", SAMPLE_POSITIONS + ("explicit",))
+        # Files from other writers may leave out the spacing and node positions: they are
+        # inferred from the coordinates (a value that is present must be a known one).
+        if "theta_h_spacing" in attrs or "sample_position" in attrs:
+            spacing = choice_attr(attrs, "theta_h_spacing", ("linear", "merl", "explicit"),
+                                  default=_infer(ds, fold)[0] if "theta_h_spacing" not in attrs else None)
+            pos = choice_attr(attrs, "sample_position", SAMPLE_POSITIONS + ("explicit",),
+                              default=_infer(ds, fold)[1] if "sample_position" not in attrs else None)
+        else:
+            spacing, pos = _infer(ds, fold)
         grid = cls.__new__(cls)
         grid.anisotropic = aniso
         grid.theta_h_spacing = spacing
@@ -200,4 +207,19 @@ class RusinkiewiczGrid(Grid):
                 axes.append(Axis(label, expect, warp, length if periodic else None, domain=(lo, lo + length),
                                  rule=rule))
         grid._set_axes(tuple(axes))
+        if "grid" not in attrs and not aniso and spacing == "merl" and fold == "reciprocity" \
+                and grid.shape == (90, 90, 180) and pos in SAMPLE_POSITIONS:
+            grid.name = "merl"  # MERL's grid, written by a tool that does not name it
         return grid
+
+
+def _infer(ds, fold):
+    """``(theta_h_spacing, sample_position)`` that reproduce a file's θh coordinate, else explicit."""
+    if "theta_h" not in ds.variables:
+        return "explicit", "explicit"
+    vals, _, _ = read_coordinate(ds, "theta_h")
+    for spacing, warp in (("linear", "linear"), ("merl", "sqrt")):
+        for pos in SAMPLE_POSITIONS:
+            if np.allclose(uniform_values(vals.size, 0.0, HALF_PI, pos, warp), vals, rtol=0, atol=1e-9):
+                return spacing, pos
+    return "explicit", "explicit"
