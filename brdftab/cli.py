@@ -1,67 +1,182 @@
 """The ``brdftab`` command line.
 
-Verbs: ``tabulate``, ``eval``, ``info``, ``models``. Angles on the command line are in
-degrees (``--wi-deg θ,φ``). Bad input prints one line on stderr and exits with code 2 —
-never a traceback (``--debug`` shows it).
+Verbs: ``tabulate``, ``convert``, ``eval``, ``info``, ``models``. Angles on the command line
+are in degrees (``--wi-deg θ,φ``). Bad input — in a file or on the command line — prints one
+line ``brdftab: error: …`` on stderr and exits with code 2, never a traceback (``--debug``,
+before or after the verb, shows it). A refused validation exits with 1 where documented,
+SIGINT with 130, SIGTERM with 143; a closed output pipe (``brdftab models | head -1``) ends
+quietly with 141, as a process killed by SIGPIPE would.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
+import os
+import signal
 import sys
+import warnings
 from pathlib import Path
 
 import click
 import numpy as np
 
+from . import _atomic
 from ._version import __version__
 from .errors import BrdftabError
 
+DEBUG_KEY = "brdftab.debug"
 
-class _Group(click.Group):
-    """Turns brdftab errors into one line on stderr and exit code 2."""
 
-    def invoke(self, ctx):
-        debug = bool(ctx.params.get("debug")) or "--debug" in sys.argv[1:]
-        try:
-            return super().invoke(ctx)
-        except BrdftabError as exc:
-            if debug:
-                raise
-            click.echo(f"brdftab: error: {_one_line(exc)}", err=True)
-            ctx.exit(exc.exit_code)
-        except OSError as exc:
-            if debug:
-                raise
-            where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
-            click.echo(f"brdftab: error: {where}{exc.strerror or exc}", err=True)
-            ctx.exit(2)
-        except KeyboardInterrupt:
-            click.echo("brdftab: interrupted; no output written", err=True)
-            ctx.exit(130)
-        except MemoryError:
-            if debug:
-                raise
-            click.echo("brdftab: error: out of memory; use a coarser grid or fewer channels", err=True)
-            ctx.exit(2)
-        except (click.exceptions.Exit, click.ClickException, click.Abort, SystemExit):
-            raise
-        except Exception as exc:  # a bug: still one line, with a pointer to --debug
-            if debug:
-                raise
-            click.echo(f"brdftab: internal error: {type(exc).__name__}: {_one_line(exc)} "
-                       "(run with --debug for the traceback)", err=True)
-            ctx.exit(1)
+def _set_debug(ctx, param, value):
+    if value:
+        ctx.meta[DEBUG_KEY] = True
+
+
+def _debug_option():
+    return click.Option(["--debug"], is_flag=True, expose_value=False, is_eager=True, callback=_set_debug,
+                        help="Show tracebacks instead of one-line errors.")
 
 
 def _one_line(exc) -> str:
     return " ".join(str(exc).split())
 
 
+def _error(text: str) -> None:
+    click.echo(f"brdftab: error: {text}", err=True)
+
+
+def _quiet_closed_pipe() -> None:
+    """stdout's reader went away: send what is left to /dev/null so the exit stays quiet."""
+    with contextlib.suppress(Exception):
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+
+
+def _stopped(kind: str, written_before: int) -> str:
+    done = _atomic.completed()[written_before:]
+    if done:
+        return f"brdftab: {kind}; only {', '.join(str(p) for p in done)} written"
+    return f"brdftab: {kind}; no output written"
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None):
+    click.echo(f"brdftab: warning: {_one_line(message)}", err=True)
+
+
+class _Group(click.Group):
+    """Turns every error into one line on stderr and an exit code; adds ``--debug`` to every verb."""
+
+    def add_command(self, cmd, name=None):
+        if not any("--debug" in getattr(p, "opts", ()) for p in cmd.params):
+            cmd.params.append(_debug_option())
+        super().add_command(cmd, name)
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        """Run the command line; usage errors and signals end with one line and an exit code."""
+        written_before = len(_atomic.completed())
+        if prog_name is None:
+            prog_name = "brdftab"
+        try:
+            previous = signal.signal(signal.SIGTERM, _atomic._raise_terminated)
+        except ValueError:  # not in the main thread
+            previous = None
+        show = warnings.showwarning
+        warnings.showwarning = _show_warning
+        try:
+            code = self._main(args, prog_name, complete_var, written_before, **extra)
+            with contextlib.suppress(Exception):
+                sys.stdout.flush()
+        except BrokenPipeError:
+            _quiet_closed_pipe()
+            code = 141
+        finally:
+            warnings.showwarning = show
+            if previous is not None:
+                signal.signal(signal.SIGTERM, previous)
+        if not standalone_mode:
+            return code
+        sys.exit(code or 0)
+
+    def _main(self, args, prog_name, complete_var, written_before, **extra):
+        try:
+            rv = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click.exceptions.NoArgsIsHelpError as exc:
+            click.echo(exc.ctx.get_help() if exc.ctx is not None else _one_line(exc.format_message()))
+            return 0
+        except click.UsageError as exc:
+            hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
+            _error(f"{_one_line(exc.format_message()).rstrip('.')}{hint}")
+            return 2
+        except click.ClickException as exc:
+            _error(_one_line(exc.format_message()))
+            return 2
+        except click.Abort as exc:  # KeyboardInterrupt or EOF while click parsed the command line
+            terminated = isinstance(exc.__context__, _atomic.Terminated)
+            click.echo(_stopped("terminated" if terminated else "interrupted", written_before), err=True)
+            return 143 if terminated else 130
+        except _atomic.Terminated:
+            click.echo(_stopped("terminated", written_before), err=True)
+            return 143
+        except KeyboardInterrupt:
+            click.echo(_stopped("interrupted", written_before), err=True)
+            return 130
+        return rv if isinstance(rv, int) else 0
+
+    def invoke(self, ctx):
+        written_before = len(_atomic.completed())
+
+        def debug():
+            return bool(ctx.meta.get(DEBUG_KEY))
+
+        try:
+            return super().invoke(ctx)
+        except BrdftabError as exc:
+            if debug():
+                raise
+            _error(_one_line(exc))
+            ctx.exit(exc.exit_code)
+        except BrokenPipeError:  # the reader of stdout has gone (| head): end quietly
+            _quiet_closed_pipe()
+            ctx.exit(141)
+        except OSError as exc:
+            if debug():
+                raise
+            where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
+            _error(f"{where}{exc.strerror or exc}")
+            ctx.exit(2)
+        except _atomic.Terminated:
+            click.echo(_stopped("terminated", written_before), err=True)
+            ctx.exit(143)
+        except KeyboardInterrupt:
+            click.echo(_stopped("interrupted", written_before), err=True)
+            ctx.exit(130)
+        except MemoryError:
+            if debug():
+                raise
+            _error("out of memory; use a coarser grid or fewer channels")
+            ctx.exit(2)
+        except RecursionError:
+            if debug():
+                raise
+            _error("input nested too deeply to process")
+            ctx.exit(2)
+        except (click.exceptions.Exit, click.ClickException, click.Abort, SystemExit):
+            raise
+        except Exception as exc:  # a bug: still one line, with a pointer to --debug
+            if debug():
+                raise
+            click.echo(f"brdftab: internal error: {type(exc).__name__}: {_one_line(exc)} "
+                       "(run with --debug for the traceback)", err=True)
+            ctx.exit(1)
+
+
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="brdftab")
-@click.option("--debug", is_flag=True, help="Show tracebacks instead of one-line errors.")
-def main(debug):
+@click.option("--debug", is_flag=True, expose_value=False, is_eager=True, callback=_set_debug,
+              help="Show tracebacks instead of one-line errors (also accepted after the verb).")
+def main():
     """Tabulate, convert and validate BRDFs."""
 
 
@@ -69,10 +184,10 @@ def main(debug):
 @main.command()
 @click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
-              help="Write outputs into DIR instead of the spec file's folder.")
+              help="Write outputs into DIR instead of the spec file's folder (created if missing).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @click.option("--allow-invalid", is_flag=True, default=None,
-              help="Write even if the table fails validation (NaN or negative samples).")
+              help="Write even if a check fails (the report is stored in the file's metadata).")
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: on a terminal, for runs over 2 s).")
 def tabulate(spec, out_dir, overwrite, allow_invalid, progress):
@@ -81,8 +196,6 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, progress):
     from .spec import load_spec
 
     s = load_spec(spec)
-    if out_dir is not None and not out_dir.is_dir():
-        raise BrdftabError(f"--out {out_dir}: no such folder")
     result = run(s, out_dir=out_dir, overwrite=overwrite, allow_invalid=allow_invalid, progress=progress)
     t = result.table
     what = (f"{len(t.wavelengths)} wavelength{'s' if len(t.wavelengths) > 1 else ''}" if t.spectral
@@ -91,6 +204,91 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, progress):
         click.echo(f"wrote {path} ({t.grid.describe()}, {what})")
     if not result.report.passed:
         click.echo(f"brdftab: warning: written despite failed checks: {result.report.summary()}", err=True)
+
+
+# --------------------------------------------------------------------------------------------
+@main.command()
+@click.argument("source", metavar="IN", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("target", metavar="OUT", type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--to", "fmt", metavar="FORMAT", help="Output format (default: from OUT's extension).")
+@click.option("--grid", "grid_text", metavar="GRID",
+              help="Grid to write on: a grid type ('merl', 'rusinkiewicz', ...) or a TOML inline table of [grid] "
+                   "keys, e.g. '{type = \"rusinkiewicz\", n_theta_h = 45}'. Default: IN's grid (or the one the "
+                   "format stores).")
+@click.option("--grid-file", type=click.Path(dir_okay=False, path_type=Path),
+              help="Read the grid from the [grid] table of a TOML file (a spec file works).")
+@click.option("--option", "-o", "options", metavar="KEY=VALUE", multiple=True,
+              help="Format option (repeatable); VALUE is a TOML value or plain text, e.g. -o dtype=float32.")
+@click.option("--fold", is_flag=True,
+              help="Average IN into the target grid's symmetries when it has fewer (an anisotropic table on an "
+                   "isotropic grid, a non-reciprocal one on a grid folded by reciprocity).")
+@click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
+@click.option("--allow-invalid", is_flag=True, help="Write even if IN fails validation.")
+@click.option("--level", "levels", multiple=True, metavar="CHECK=LEVEL",
+              help="Level of a validation check: off, warn or error (repeatable), as for brdftab validate.")
+@click.option("--set", "settings", multiple=True, metavar="CHECK.NAME=VALUE",
+              help="Threshold of a validation check (repeatable), as for brdftab validate.")
+@click.option("--progress/--no-progress", default=None,
+              help="Progress bar (default: on a terminal, for runs over 2 s).")
+@click.option("--json", "as_json", is_flag=True, help="Print what was done as JSON.")
+def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite, allow_invalid, levels, settings,
+            progress, as_json):
+    """Convert the table file IN into OUT, in another format or on another grid.
+
+    IN is validated first (a failed check refuses with exit code 1 unless --allow-invalid).
+    A table already on the target grid is copied; otherwise it is resampled, and the maximum
+    and rms relative difference between OUT and IN at random direction pairs is reported.
+    """
+    from . import convert as conv
+
+    if grid_text is not None and grid_file is not None:
+        raise click.UsageError("give either --grid or --grid-file, not both")
+    opts = {}
+    for text in options:
+        key, value = conv.format_option(text)
+        if key in opts:
+            raise BrdftabError(f"--option {key} given twice")
+        opts[key] = value
+    grid = wavelengths = None
+    inputs = []
+    if grid_text is not None:
+        grid, wavelengths = conv._build_grid(conv.grid_option(grid_text), "--grid")
+    elif grid_file is not None:
+        grid, wavelengths = conv._build_grid(conv.grid_file(grid_file), f"{grid_file}: grid")
+        inputs.append((grid_file, "the grid file"))
+    checks = None
+    if levels or settings:
+        from .cli_validate import cli_layer
+
+        checks = cli_layer(levels, settings)
+    result = conv.convert(source, target, grid=grid, wavelengths=wavelengths, format=fmt, options=opts,
+                          overwrite=overwrite, fold=fold, allow_invalid=allow_invalid, checks=checks,
+                          progress=progress, inputs=inputs)
+    for o in result.report.failures:
+        click.echo(f"brdftab: warning: written despite a failed check: {o.name}: {o.detail}", err=True)
+    if as_json:
+        click.echo(json.dumps(result.to_json(), default=str))
+        return
+    written = result.written
+    what = ""
+    if getattr(written, "spectral", False):
+        what = f", {len(written.wavelengths)} wavelengths"
+    elif getattr(written, "channels", None):
+        what = f", channel{'s' if len(written.channels) > 1 else ''} {', '.join(written.channels)}"
+    grid_text_out = f"{result.target_grid}" if result.target_grid else "the format's own sampling"
+    click.echo(f"wrote {result.target} ({result.format}, {grid_text_out}{what})")
+    for why in result.folded:
+        click.echo(f"folded: averaged because {why}")
+    if not result.resampled:
+        click.echo("copied: same grid as the input, values unchanged")
+        return
+    click.echo(f"resampled: {result.source_grid or 'the input'} -> {grid_text_out}")
+    d = result.difference
+    if d is not None:
+        click.echo(f"resampling error: max relative difference {d.max_rel:.3g}, rms {d.rms_rel:.3g} "
+                   f"({d.points} check points, written table vs {'the averaged ' if result.folded else ''}input)")
+    elif result.note:
+        click.echo(f"resampling error: not computed ({result.note})")
 
 
 # --------------------------------------------------------------------------------------------
@@ -107,15 +305,49 @@ def _direction(text, option):
     return theta, phi
 
 
+def _content_format(path: Path):
+    """The registered table format whose content (magic bytes, sniffer) ``path`` has, or None."""
+    from . import formats
+
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(formats.HEAD_BYTES)
+            size = fh.seek(0, 2)
+    except OSError:
+        return None
+    for fmt in formats.FORMATS.values():
+        if fmt.opens(head, size):
+            return fmt
+    return None
+
+
+def _is_table_file(path: Path) -> bool:
+    """A table by content; else by a table format's extension. Anything else is a spec."""
+    from . import formats
+
+    if _content_format(path) is not None:
+        return True
+    if path.suffix.lower() == ".toml":
+        return False
+    try:
+        formats.format_for(path)
+    except BrdftabError:
+        return False
+    return True
+
+
 def _load_source(source: Path):
-    if source.suffix.lower() == ".toml":
+    if not _is_table_file(source):
         from .spec import load_spec
 
         s = load_spec(source)
         return s.model, s.wavelengths
     from . import formats
 
-    return formats.read(source), None
+    table = formats.read(source)
+    if hasattr(table, "outside"):
+        table.outside = "raise"  # a direction pair outside the table's domain is an error, not NaN
+    return table, None
 
 
 @main.command("eval")
@@ -128,7 +360,8 @@ def _load_source(source: Path):
 def eval_(source, wi_deg, wo_deg, wavelengths, as_json):
     """Evaluate the BRDF of SOURCE (a spec file or a table file) at one direction pair.
 
-    Prints f in 1/sr per channel or wavelength.
+    SOURCE is read as a table when its content is a table format's (whatever its name),
+    otherwise as a spec. Prints f in 1/sr per channel or wavelength.
     """
     from .geometry import sph_to_vec
 
@@ -170,8 +403,7 @@ def info(file, as_json):
     fmt = formats.detect(file)
     table = formats.read(file)
     ds = table.ds
-    v = table.values
-    finite = np.isfinite(v)
+    stats = table.statistics()  # streamed: the samples are never loaded whole
     axes = [{"name": a.name, "size": len(a), "min_deg": float(np.degrees(a.values[0])),
              "max_deg": float(np.degrees(a.values[-1]))} for a in table.grid.axes]
     attrs = {k: (v_.item() if hasattr(v_, "item") else v_) for k, v_ in ds.attrs.items()}
@@ -182,18 +414,22 @@ def info(file, as_json):
         "axes": axes,
         "channels": list(table.channels) if not table.spectral else None,
         "wavelengths_nm": [float(x) for x in table.wavelengths] if table.spectral else None,
-        "dtype": str(v.dtype),
-        "samples": int(v.size),
-        "min": float(v[finite].min()) if finite.any() else None,
-        "max": float(v[finite].max()) if finite.any() else None,
-        "nonfinite": int((~finite).sum()),
-        "negative": int((v < 0).sum()),
+        **stats,
         "attributes": attrs,
     }
     if as_json:
         click.echo(json.dumps(data, default=str))
         return
     click.echo(f"{file}  [{fmt.name}]")
+    if attrs.get("comment"):
+        click.echo(f"  description: {_one_line(attrs['comment'])}")
+    if attrs.get("spec_file") or attrs.get("spec_sha256"):
+        sha = str(attrs.get("spec_sha256") or "")
+        name = attrs.get("spec_file") or "(unnamed)"
+        click.echo(f"  spec file:   {name}" + (f"  (sha256 {sha[:16]}...)" if sha else ""))
+    click.echo(f"  model:       {attrs.get('model', table.name)}")
+    for line in _parameter_lines(attrs.get("model"), attrs.get("parameters"), 4):
+        click.echo(line)
     click.echo(f"  grid:        {data['grid']}")
     for a in axes:
         click.echo(f"    {a['name']:<9} {a['size']:>5} nodes  {a['min_deg']:.4g} .. {a['max_deg']:.4g} deg")
@@ -201,13 +437,69 @@ def info(file, as_json):
         click.echo(f"  wavelengths: {', '.join(f'{x:g}' for x in table.wavelengths)} nm")
     else:
         click.echo(f"  channels:    {', '.join(table.channels)}")
-    click.echo(f"  values:      {v.dtype}, {v.size} samples, min {data['min']:.6g}, max {data['max']:.6g} sr-1, "
-               f"{data['nonfinite']} non-finite, {data['negative']} negative"
-               if data["min"] is not None else f"  values:      {v.size} samples, none finite")
-    for key in ("model", "parameters", "parameterization", "sample_position", "phi_d_fold", "theta_h_spacing",
-                "relative_to", "spec_sha256", "brdftab_version", "created"):
+    missing = f", {data['missing']} missing" if data["missing"] else ""
+    click.echo(f"  values:      {data['dtype']}, {data['samples']} samples, min {data['min']:.6g}, max {data['max']:.6g}"
+               f" sr-1, {data['nonfinite']} non-finite, {data['negative']} negative{missing}"
+               if data["min"] is not None else f"  values:      {data['samples']} samples, none finite{missing}")
+    for key in ("parameterization", "sample_position", "phi_d_fold", "theta_h_spacing", "relative_to",
+                "converted_from", "brdftab_version", "created"):
         if key in attrs:
             click.echo(f"  {key + ':':<18} {attrs[key]}")
+
+
+def _toml_value(v) -> str:
+    """A parameter value written as in a spec file."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, (int, str)):
+        return json.dumps(v, ensure_ascii=False) if isinstance(v, str) else str(v)
+    if v is None:
+        return "none"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k} = {_toml_value(x)}" for k, x in v.items()) + "}"
+    return str(v)
+
+
+def _parameter_lines(model, parameters, indent: int) -> list:
+    """``name = value`` lines of a table's ``parameters`` attribute (JSON); nested models
+    indented under their name, angles in degrees under their ``_deg`` spec key."""
+    from . import models as registry
+
+    if parameters is None or parameters == "":
+        return []
+    if isinstance(parameters, str):
+        try:
+            parameters = json.loads(parameters)
+        except json.JSONDecodeError:
+            return [f"{' ' * indent}parameters: {_one_line(parameters)}"]
+    if not isinstance(parameters, dict):
+        return [f"{' ' * indent}parameters: {_one_line(parameters)}"]
+    cls = registry.MODELS.get(model) if isinstance(model, str) else None
+    declared = {p.name: p for p in getattr(cls, "params", ())}
+    pad = " " * indent
+    lines = []
+
+    def nested(v):
+        return isinstance(v, dict) and "model" in v and isinstance(v.get("parameters", {}), dict)
+
+    for key, value in parameters.items():
+        p = declared.get(key)
+        if nested(value):
+            lines.append(f"{pad}{key}: {value['model']}")
+            lines += _parameter_lines(value["model"], value.get("parameters", {}), indent + 2)
+        elif isinstance(value, list) and value and all(nested(x) for x in value):
+            for i, x in enumerate(value):
+                lines.append(f"{pad}{key}[{i}]: {x['model']}")
+                lines += _parameter_lines(x["model"], x.get("parameters", {}), indent + 2)
+        elif p is not None and p.angle and isinstance(value, (int, float)) and not isinstance(value, bool):
+            lines.append(f"{pad}{p.spec_key} = {_toml_value(float(np.degrees(value)))}")
+        else:
+            lines.append(f"{pad}{key} = {_toml_value(value)}")
+    return lines
 
 
 # --------------------------------------------------------------------------------------------
@@ -237,11 +529,17 @@ def models(name, as_json):
             "used_when": p.used_when,
         })
     if as_json:
+        from .references import cite, keys_in
+
         click.echo(json.dumps({"name": cls.name, "summary": cls.summary, "reference": cls.reference,
+                               "references": dict(zip(keys_in(cls.reference), cite(cls.reference))),
                                "parameters": rows}))
         return
     click.echo(f"{cls.name}: {cls.summary}")
-    click.echo(f"reference: {cls.reference}")
+    from .references import cite
+
+    for i, text in enumerate(cite(cls.reference)):
+        click.echo(f"{'references:' if i == 0 else '':<11} {text}")
     click.echo("parameters (spec key, accepted values, default):")
     for r, p in zip(rows, cls.params):
         default = "required" if r["required"] else ("none" if r["default"] is None else f"default {r['default']!r}")
@@ -250,6 +548,44 @@ def models(name, as_json):
         click.echo(f"  {r['spec_key']}{units}: {p.expected()}; {default}{when}")
         click.echo(f"      {r['doc']}")
 
+
+# --------------------------------------------------------------------------------------------
+@main.command()
+@click.argument("type_name", metavar="TYPE", required=False)
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def grids(type_name, as_json):
+    """List the grid types, or show the [grid] keys of grid TYPE with their defaults."""
+    from .grids import COMMON_PARAMS, GRIDS
+    from .params import suggest
+
+    if type_name is None:
+        if as_json:
+            click.echo(json.dumps({n: c.summary for n, c in GRIDS.items()}))
+            return
+        width = max(len(n) for n in GRIDS)
+        for n, cls in GRIDS.items():
+            click.echo(f"{n:<{width}}  {cls.summary}")
+        return
+    if type_name not in GRIDS:
+        raise BrdftabError(f"unknown grid type {type_name!r}{suggest(type_name, GRIDS)}; valid: {', '.join(GRIDS)}")
+    cls = GRIDS[type_name]
+    params = tuple(cls.params) + COMMON_PARAMS
+    rows = [{"key": p.spec_key, "expected": p.expected(), "default": p.to_json(None if p.required else p.default),
+             "required": p.required, "used_when": p.used_when, "doc": p.doc} for p in params]
+    if as_json:
+        click.echo(json.dumps({"type": type_name, "summary": cls.summary, "keys": rows}))
+        return
+    click.echo(f"{type_name}: {cls.summary}")
+    click.echo("keys ([grid] table; angles in degrees):")
+    for r in rows:
+        default = "required" if r["required"] else ("no default" if r["default"] is None
+                                                    else f"default {_toml_value(r['default'])}")
+        when = f"; {r['used_when']}" if r["used_when"] else ""
+        click.echo(f"  {r['key']}: {r['expected']}; {default}{when}")
+        click.echo(f"      {r['doc']}")
+
+
+main.add_command(__import__("brdftab.cli_validate", fromlist=["validate"]).validate)  # brdftab validate
 
 if __name__ == "__main__":  # pragma: no cover
     main()

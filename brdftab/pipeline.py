@@ -10,12 +10,13 @@ explicitly allowed.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 
 from . import formats
-from ._atomic import check_target, terminate_as_interrupt
-from .checks import Report, run_checks
-from .errors import BrdftabError, ValidationError
+from ._atomic import check_target, claim, same_file, terminate_as_interrupt, write_progress
+from .checks import Report, guard
+from .errors import BrdftabError
 from .spec import Spec
 from .table import Table, tabulate
 
@@ -80,17 +81,22 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
         progress: bool | None = None, checks: dict | None = None) -> Result:
     """Tabulate ``spec`` and write its outputs.
 
-    Output paths resolve against ``out_dir`` when given (else the spec's folder). Every
-    target is checked before any work starts: an existing file without ``overwrite`` is
-    refused. Each table is validated before export; a failed check refuses the export unless
-    ``allow_invalid`` (or the spec's ``validation.allow_invalid``) is true. ``checks`` is a
+    Output paths resolve against ``out_dir`` when given (else the spec's folder; missing
+    folders are created). Every target is checked and claimed before any work starts: an
+    existing file without ``overwrite``, a file this run reads (the spec, the model's input
+    files) and a file another run is writing are refused. Each table is validated before
+    export; a failed check refuses the export unless ``allow_invalid`` (or the spec's
+    ``validation.allow_invalid``) is true. ``checks`` is a
     configuration layer over the spec's ``[validation]`` (command-line thresholds).
     """
+    started = time.monotonic()
     planned = plan(spec, out_dir)
+    inputs = spec.inputs
     for p in planned:
-        check_target(p.target, overwrite)
-    if len({p.target.resolve() for p in planned}) != len(planned):
-        raise BrdftabError(f"{spec.path}: two outputs write the same file")
+        check_target(p.target, overwrite, inputs)
+    for i, p in enumerate(planned):
+        if any(same_file(p.target, q.target) for q in planned[:i]):
+            raise BrdftabError(f"{spec.path}: two outputs write the same file {p.target}")
 
     provenance = {"spec_sha256": spec.sha256, "spec_file": spec.path.name}
     if spec.description:
@@ -99,7 +105,8 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
     layers = [config, checks or {}]
     allow = spec.validation.get("allow_invalid", False) if allow_invalid is None else allow_invalid
     result = Result()
-    with terminate_as_interrupt():
+    # Claim every target before any work: a concurrent run to the same file is refused now.
+    with terminate_as_interrupt(), claim([p.target for p in planned], overwrite, inputs):
         jobs = []  # (Planned, brdf to write, report)
         for grid, members in _groups(planned):
             # formats with their own prepare (they sample the model themselves) get the model
@@ -108,25 +115,45 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
                 source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance)
             else:
                 source = spec.model
-            report = run_checks(source, _merge(layers))
-            if not report.passed and not allow:
-                where = ", ".join(str(m.target) for m in members)
-                raise ValidationError(f"refusing to export {where}: {report.summary()} "
-                                      "(pass --allow-invalid to write anyway)")
+            # validate before export; a table's metadata gets the report and its a(θi) curve
+            report = guard(source, layers, allow_invalid=allow, what=", ".join(str(m.target) for m in members),
+                           reference=spec.model, wavelengths=spec.wavelengths,
+                           subject=f"{spec.path.name} on {grid.describe() if grid is not None else 'its own grid'}")
             for m in members:
                 jobs.append((m, source, report))
         for m, source, report in jobs:
-            written = formats.write(source, m.target, grid=m.grid, format=m.format.name, overwrite=overwrite,
-                                    **m.options)
+            with write_progress(m.target.name, progress, _progress_delay(started)):
+                written = formats.write(source, m.target, grid=m.grid, format=m.format.name, overwrite=overwrite,
+                                        **m.options)
             result.written.append(m.target)
             result.tables.append(written if isinstance(written, Table) else source)
             result.reports.append(report)
     return result
 
 
-def _merge(layers) -> dict:
-    out = {}
-    for layer in layers:
-        for name, cfg in layer.items():
-            out.setdefault(name, {}).update(cfg)
-    return out
+def _progress_delay(started: float) -> float:
+    """Seconds until a progress bar may appear: the bar covers the run, not each phase."""
+    from . import table
+
+    return max(0.0, table.PROGRESS_DELAY - (time.monotonic() - started))
+
+
+def validate(spec: Spec, checks: dict | None = None, progress: bool | None = None) -> list:
+    """Check what :func:`run` would export for ``spec``, writing nothing: the model tabulated
+    on each target grid (or the model itself for formats that sample it), checked with the
+    spec's ``[validation]`` and ``checks`` (command-line layer). Returns one
+    :class:`~brdftab.checks.Report` per target grid."""
+    from .checks import run_checks
+
+    config = {k: v for k, v in spec.validation.items() if k != "allow_invalid"}
+    provenance = {"spec_sha256": spec.sha256, "spec_file": spec.path.name}
+    reports = []
+    for grid, members in _groups(plan(spec)):
+        if any(m.format.prepare is None for m in members):
+            source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance)
+        else:
+            source = spec.model
+        where = grid.describe() if grid is not None else "its own grid"
+        reports.append(run_checks(source, [config, checks or {}], reference=spec.model, wavelengths=spec.wavelengths,
+                                  subject=f"{spec.path} ({where})"))
+    return reports

@@ -52,7 +52,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["Spec", "Output", "load_spec", "build_model"]
+__all__ = ["Spec", "Output", "load_spec", "build_model", "model_inputs"]
 
 TOP_KEYS = ("description", "model", "grid", "output", "validation")
 
@@ -89,6 +89,34 @@ class Spec:
     description: str = ""
     raw: dict = field(default_factory=dict)
 
+    @property
+    def inputs(self) -> list:
+        """The files a run of this spec reads, as ``(path, what)``: the spec file itself and any
+        file its model reads (a model lists those in ``input_files``). No output may be one."""
+        out = [(self.path, "the spec file")]
+        out += [(Path(p), "an input file of the model") for p in model_inputs(self.model)]
+        return out
+
+
+def model_inputs(model) -> list:
+    """Files ``model`` and the models nested in it read (their ``input_files``)."""
+    found, stack, seen = [], [model], set()
+    while stack:
+        m = stack.pop()
+        if id(m) in seen:
+            continue
+        seen.add(id(m))
+        found += [Path(p) for p in getattr(m, "input_files", ()) or ()]
+        for p in getattr(m, "params", ()):  # nested models are parameters of kind brdf / brdfs
+            if getattr(p, "kind", None) not in ("brdf", "brdfs"):
+                continue
+            sub = getattr(m, p.name, None)
+            if isinstance(sub, BRDF):
+                stack.append(sub)
+            elif isinstance(sub, (list, tuple)):
+                stack.extend(x for x in sub if isinstance(x, BRDF))
+    return found
+
 
 def load_spec(path) -> Spec:
     """Read and validate the spec file at ``path``."""
@@ -100,12 +128,41 @@ def load_spec(path) -> Spec:
     except OSError as exc:
         raise SpecError(f"{path}: cannot read ({exc.strerror})") from None
     try:
-        raw = tomllib.loads(data.decode("utf-8"))
+        text = data.decode("utf-8-sig")  # a byte-order mark, as some editors write, is accepted
     except UnicodeDecodeError:
         raise SpecError(f"{path}: not a UTF-8 text file") from None
+    try:
+        raw = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{path}: invalid TOML: {exc}") from None
+    except RecursionError:
+        raise SpecError(f"{path}: values nested too deeply (at most {MAX_DEPTH} levels)") from None
+    if _depth(raw) > MAX_DEPTH:
+        raise SpecError(f"{path}: values nested too deeply (at most {MAX_DEPTH} levels)")
     return parse_spec(raw, path, hashlib.sha256(data).hexdigest())
+
+
+#: Deepest nesting of tables and arrays a spec may have (models nest a few levels at most).
+MAX_DEPTH = 64
+
+
+def _depth(value) -> int:
+    """Nesting depth of tables and arrays in ``value`` (iterative: no recursion limit)."""
+    deepest = 0
+    stack = [(value, 1)]
+    while stack:
+        v, d = stack.pop()
+        if isinstance(v, dict):
+            items = v.values()
+        elif isinstance(v, list):
+            items = v
+        else:
+            continue
+        deepest = max(deepest, d)
+        if d > MAX_DEPTH:
+            return d
+        stack.extend((x, d + 1) for x in items)
+    return deepest
 
 
 def _fail(path, key, message):

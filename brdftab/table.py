@@ -423,7 +423,7 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
         for start in range(0, size, chunk_size):
             stop = min(start + chunk_size, size)
             wi, wo = grid.directions(start, stop)
-            flat[start:stop] = brdf.eval(wi, wo, lam)
+            flat[start:stop] = brdf.eval(wi, wo, lam, assume_unit=True)
             if bar is not None:
                 bar.update(stop - start)
     finally:

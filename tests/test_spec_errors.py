@@ -319,8 +319,8 @@ def test_models_unknown_name_subprocess():
     _assert_one_error_line(proc.stderr, proc.returncode, "nosuchmodel", "lambert", "microfacet")
 
 
-def test_tabulate_out_folder_missing(tmp_path):
-    missing = tmp_path / "no-such-folder"
+def test_tabulate_out_folder_missing_is_created(tmp_path):
+    missing = tmp_path / "no-such-folder" / "sub"
     result = _cli(["tabulate", GGX_GOLD, "--out", missing])
-    _assert_one_error_line(result.stderr, result.exit_code, "--out", missing.name)
-    assert not missing.exists()
+    assert result.exit_code == 0, result.stderr
+    assert sorted(p.name for p in missing.iterdir()) == ["ggx-gold.nc"]

@@ -2,7 +2,7 @@
 
 A check is a small class (:class:`Check`) with a ``name``, a ``family`` (one module per
 family in this package), declared ``thresholds`` (:class:`~brdftab.params.Param`, so specs,
-the CLI and ``brdftab checks`` describe them the same way) and a default ``level``:
+the CLI and the reports describe them the same way) and a default ``level``:
 
 ``off``
     not run;
@@ -11,23 +11,68 @@ the CLI and ``brdftab checks`` describe them the same way) and a default ``level
 ``error``
     a figure beyond its threshold is FAIL: export is refused and ``brdftab validate`` exits 1.
 
-:func:`run_checks` runs the configured checks on a BRDF. Configuration comes from defaults,
-then the spec's ``[validation]`` table (``[validation.<check>] level = "warn"``, thresholds by
-name), then the command line, each overriding the one before.
+:func:`run_checks` runs the configured checks on a BRDF and returns a :class:`Report` (text,
+JSON and JUnit XML forms). Configuration comes from defaults, then the spec's
+``[validation]`` table (``[validation.<check>] level = "warn"``, thresholds by name; angles as
+``<name>_deg``), then the command line, each overriding the one before (:func:`configure`).
+
+Checks share what they compute — the albedo curve, the sampled direction pairs — through the
+:class:`Context` they are given, so the energy and albedo checks integrate once.
+
+Families (modules): ``samples`` (finite, non-negative, missing), ``reciprocity``, ``energy``
+(energy, albedo), ``symmetry`` (isotropy, bilateral), ``conventions``, ``tabulation``.
 """
 
 from __future__ import annotations
 
 import importlib
+import json
+import math
+import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
-from ..errors import ParameterError
+import numpy as np
+
+from .._version import __version__
+from ..errors import BrdftabWarning, ParameterError, ValidationError
 from ..params import Param, parse_params, suggest
 
-__all__ = ["Check", "Outcome", "Report", "CHECKS", "LEVELS", "register", "run_checks", "configure"]
+__all__ = ["Check", "ChecksFailed", "Context", "Outcome", "Report", "CHECKS", "LEVELS", "STATUSES", "SCHEMA_PATH",
+           "SCHEMA_VERSION", "register", "run_checks", "configure", "guard", "stamp", "load_schema", "run_document",
+           "junit_xml"]
 
 LEVELS = ("off", "warn", "error")
 STATUSES = ("pass", "warn", "fail", "skip")
+#: Version of the report layout described by :data:`SCHEMA_PATH`.
+SCHEMA_VERSION = 1
+#: JSON Schema of ``brdftab validate --json`` output (``$defs/report``: one report).
+SCHEMA_PATH = Path(__file__).with_name("report.schema.json")
+
+
+def load_schema() -> dict:
+    """The JSON Schema of validation reports (a dict)."""
+    return json.loads(SCHEMA_PATH.read_text(encoding="utf-8"))
+
+
+def _plain(x):
+    """JSON-safe copy: numpy scalars/arrays to Python, non-finite floats to None."""
+    if isinstance(x, dict):
+        return {str(k): _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)):
+        x = float(x)
+        return x if math.isfinite(x) else None
+    if x is None or isinstance(x, str):
+        return x
+    return str(x)
 
 
 @dataclass
@@ -41,21 +86,24 @@ class Outcome:
     detail: str = ""
     level: str = "error"
     data: dict = field(default_factory=dict)
+    family: str = ""
 
     @property
     def passed(self) -> bool:
         return self.status != "fail"
 
     def to_json(self) -> dict:
-        return {"name": self.name, "status": self.status, "level": self.level, "figure": self.figure,
-                "threshold": self.threshold, "detail": self.detail, "data": self.data}
+        return {"name": self.name, "family": self.family, "status": self.status, "level": self.level,
+                "figure": _plain(self.figure), "threshold": _plain(self.threshold), "detail": self.detail,
+                "data": _plain(self.data)}
 
 
 @dataclass
 class Report:
-    """The outcomes of a run of checks."""
+    """The outcomes of a run of checks on one BRDF (``subject`` says which)."""
 
     outcomes: list = field(default_factory=list)
+    subject: str = ""
 
     @property
     def passed(self) -> bool:
@@ -72,14 +120,124 @@ class Report:
     def get(self, name: str) -> Outcome | None:
         return next((o for o in self.outcomes if o.name == name), None)
 
+    def counts(self) -> dict:
+        return {s: sum(o.status == s for o in self.outcomes) for s in STATUSES}
+
     def summary(self) -> str:
+        """The failed checks with their figures, or a count of what passed."""
         bad = self.failures
         if not bad:
-            return "all checks passed"
+            c = self.counts()
+            return f"all checks passed ({c['pass']} pass, {c['warn']} warn, {c['skip']} skip)"
         return "; ".join(f"{o.name}: {o.detail}" for o in bad)
 
     def to_json(self) -> dict:
-        return {"passed": self.passed, "checks": [o.to_json() for o in self.outcomes]}
+        """One report as ``$defs/report`` of :data:`SCHEMA_PATH` describes it."""
+        return {"schema_version": SCHEMA_VERSION, "brdftab_version": __version__, "subject": self.subject,
+                "passed": self.passed, "counts": self.counts(), "checks": [o.to_json() for o in self.outcomes]}
+
+    def to_text(self) -> str:
+        """One line per check: ``PASS  name  detail``; then a verdict line."""
+        lines = [f"{self.subject}:" if self.subject else "validation:"]
+        width = max([len(o.name) for o in self.outcomes] + [10])
+        for o in self.outcomes:
+            lines.append(f"  {o.status.upper():<4}  {o.name:<{width}}  {o.detail}")
+        c = self.counts()
+        verdict = "PASSED" if self.passed else "FAILED"
+        lines.append(f"  {verdict}: {c['pass']} pass, {c['warn']} warn, {c['fail']} fail, {c['skip']} skip")
+        return "\n".join(lines)
+
+    def to_junit(self) -> str:
+        """A JUnit XML document (one ``testsuite`` with a ``testcase`` per check)."""
+        return junit_xml([self])
+
+
+def run_document(reports, errors=()) -> dict:
+    """The ``brdftab validate --json`` document: reports, unreadable inputs, overall verdict."""
+    errs = [{"subject": s, "error": str(e)} for s, e in errors]
+    return {"schema_version": SCHEMA_VERSION, "brdftab_version": __version__,
+            "passed": all(r.passed for r in reports) and not errs,
+            "reports": [r.to_json() for r in reports], "errors": errs}
+
+
+def junit_xml(reports, errors=()) -> str:
+    """JUnit XML for CI dashboards: ``testsuites/testsuite/testcase`` with ``failure`` for
+    FAIL, ``skipped`` for SKIP, ``system-out`` carrying WARN details, and an ``error`` test
+    case per unreadable input."""
+    import xml.etree.ElementTree as ET
+
+    root = ET.Element("testsuites", name="brdftab validate")
+    totals = {"tests": 0, "failures": 0, "errors": 0, "skipped": 0}
+    for r in reports:
+        suite = ET.SubElement(root, "testsuite", name=r.subject or "brdf")
+        n = {"tests": 0, "failures": 0, "errors": 0, "skipped": 0}
+        for o in r.outcomes:
+            n["tests"] += 1
+            case = ET.SubElement(suite, "testcase", classname=f"brdftab.checks.{o.family or 'check'}", name=o.name)
+            case.set("time", "0")
+            if o.status == "fail":
+                n["failures"] += 1
+                el = ET.SubElement(case, "failure", message=o.detail, type=o.name)
+                el.text = json.dumps(o.to_json(), indent=1)
+            elif o.status == "skip":
+                n["skipped"] += 1
+                ET.SubElement(case, "skipped", message=o.detail)
+            else:
+                out = ET.SubElement(case, "system-out")
+                out.text = f"{o.status.upper()}: {o.detail}"
+        for k, v in n.items():
+            suite.set(k, str(v))
+            totals[k] += v
+    for subject, err in errors:
+        suite = ET.SubElement(root, "testsuite", name=str(subject), tests="1", failures="0", errors="1", skipped="0")
+        case = ET.SubElement(suite, "testcase", classname="brdftab.input", name="read")
+        ET.SubElement(case, "error", message=str(err), type="bad input")
+        totals["tests"] += 1
+        totals["errors"] += 1
+    for k, v in totals.items():
+        root.set(k, str(v))
+    ET.indent(root)
+    return ET.tostring(root, encoding="unicode", xml_declaration=True) + "\n"
+
+
+class Context:
+    """What a check is given: the BRDF, the wavelengths to evaluate it at, the model a table
+    was made from (when known) and a cache shared by all checks of one run."""
+
+    def __init__(self, brdf, wavelengths=None, reference=None):
+        self.brdf = brdf
+        self.wavelengths = None if wavelengths is None else np.asarray(wavelengths, float)
+        self.reference = reference
+        self.cache: dict = {}
+
+    @property
+    def is_table(self) -> bool:
+        """The BRDF holds samples (``values``) on some ``grid``."""
+        return hasattr(self.brdf, "values") and hasattr(self.brdf, "grid")
+
+    @property
+    def on_grid(self) -> bool:
+        """A table on one of brdftab's grids (node pairs, domains and node positions are known)."""
+        from ..grids import Grid
+
+        return self.is_table and isinstance(self.brdf.grid, Grid)
+
+    def memo(self, key, compute):
+        """``compute()`` once per ``key`` for this run."""
+        if key not in self.cache:
+            self.cache[key] = compute()
+        return self.cache[key]
+
+    def eval(self, brdf, wi, wo):
+        return brdf.eval(wi, wo, self.wavelengths)
+
+    def labels(self) -> list:
+        """Names of the output channels (wavelengths as 'λ nm')."""
+        b = self.brdf
+        lam = self.wavelengths if self.wavelengths is not None else b.wavelengths
+        if b.spectral or self.wavelengths is not None:
+            return [f"{x:g} nm" for x in lam]
+        return list(b.channels)
 
 
 class Check:
@@ -91,14 +249,25 @@ class Check:
     level: str = "error"
     thresholds: tuple = ()
 
-    def applies(self, brdf) -> str | None:
-        """None when the check can run on ``brdf``, else the reason it is skipped."""
+    def applies(self, ctx: Context) -> str | None:
+        """None when the check can run, else the reason it is skipped."""
         return None
 
-    def run(self, brdf, **thresholds) -> Outcome:
-        """Measure ``brdf``; return an Outcome with status "pass" or "fail" (levels are applied
-        by :func:`run_checks`)."""
+    def check_config(self, cfg: dict) -> None:
+        """Raise :class:`ParameterError` for thresholds that do not fit together."""
+
+    def run(self, ctx: Context, **thresholds) -> Outcome:
+        """Measure ``ctx.brdf``; return an Outcome with status "pass", "fail" or "skip" — or
+        "warn" for a finding that must be reported but never blocks (levels are applied by
+        :func:`run_checks`: "fail" becomes "warn" at level warn)."""
         raise NotImplementedError
+
+    def outcome(self, passed: bool, figure=None, threshold=None, detail="", **data) -> Outcome:
+        return Outcome(self.name, "pass" if passed else "fail", _plain(figure), _plain(threshold), detail,
+                       data=data, family=self.family)
+
+    def skip(self, why: str, **data) -> Outcome:
+        return Outcome(self.name, "skip", detail=why, data=data, family=self.family)
 
 
 #: Registered checks by name, in the order they run.
@@ -111,13 +280,47 @@ def register(cls):
     return cls
 
 
+def _convert(check, name, key, value):
+    params = {p.name: p for p in check.thresholds}
+    by_key = {p.spec_key: p for p in check.thresholds}
+    p = by_key.get(key) or params.get(key)
+    if p is None:
+        valid = ["level", *by_key]
+        raise ParameterError(f"{name}.{key}", f"unknown threshold of check '{name}'{suggest(key, valid)}; valid: "
+                                              f"{', '.join(valid)}")
+    if p.angle and key == p.spec_key:
+        if isinstance(value, bool) or not isinstance(value, (int, float, list)):
+            raise ParameterError(f"{name}.{key}", f"expected an angle in degrees, got {value!r}")
+        try:
+            value = (np.radians(np.asarray(value, float))).tolist()
+        except (TypeError, ValueError):
+            raise ParameterError(f"{name}.{key}", f"expected angles in degrees, got {value!r}") from None
+    try:
+        return p.name, parse_params(check.thresholds, {p.name: value}, f"check {name}", fill=False)[p.name]
+    except ParameterError as exc:
+        raise ParameterError(f"{name}.{key}", exc.detail) from None
+
+
 def configure(*layers) -> dict:
     """Merge configuration layers ``{check: {"level": ..., threshold: ...}}`` (later wins) and
-    validate every key against the registered checks; returns ``{check: {level, thresholds}}``."""
+    validate every key against the registered checks; returns ``{check: {level, thresholds}}``.
+
+    A layer may also be a list of layers (nested lists are flattened). Angle thresholds are given in radians under their
+    name or in degrees under ``<name>_deg``.
+    """
+    flat = []
+
+    def add(layer):
+        if isinstance(layer, (list, tuple)):
+            for sub in layer:
+                add(sub)
+        else:
+            flat.append(layer)
+    add(layers)
     out = {}
     for name, check in CHECKS.items():
         out[name] = {"level": check.level, **{p.name: p.default for p in check.thresholds}}
-    for layer in layers:
+    for layer in flat:
         for name, cfg in (layer or {}).items():
             if name not in CHECKS:
                 raise ParameterError(name, f"unknown check{suggest(name, CHECKS)}; valid: {', '.join(CHECKS)}")
@@ -131,21 +334,28 @@ def configure(*layers) -> dict:
                                              f"{value!r}{suggest(value, LEVELS)}")
                     out[name]["level"] = value
                     continue
-                try:
-                    out[name].update(parse_params(check.thresholds, {key: value}, f"check {name}", fill=False))
-                except ParameterError as exc:
-                    raise ParameterError(f"{name}.{exc.key}", exc.detail) from None
+                pname, converted = _convert(check, name, key, value)
+                out[name][pname] = converted
+    for name, check in CHECKS.items():
+        try:
+            check.check_config(out[name])
+        except ParameterError as exc:
+            raise ParameterError(f"{name}.{exc.key}", exc.detail) from None
     return out
 
 
-def run_checks(brdf, config: dict | None = None, *, only=None) -> Report:
+def run_checks(brdf, config=None, *, only=None, wavelengths=None, reference=None, subject: str = "") -> Report:
     """Run the configured checks on ``brdf`` (a model or a table).
 
-    ``config`` is one layer as :func:`configure` takes it (or an already merged one);
-    ``only`` restricts the run to the named checks.
+    ``config`` is one layer as :func:`configure` takes it, or a list of layers (later wins);
+    ``only`` restricts the run to the named checks; ``wavelengths`` [nm] are those to evaluate
+    a spectral BRDF at; ``reference`` is the model a table was tabulated from (else the model
+    named in the table's provenance is used where available); ``subject`` names what is
+    checked in the report.
     """
     merged = configure(config)
-    report = Report()
+    ctx = Context(brdf, wavelengths, reference)
+    report = Report(subject=subject or brdf.describe())
     for name, check in CHECKS.items():
         if only is not None and name not in only:
             continue
@@ -153,20 +363,58 @@ def run_checks(brdf, config: dict | None = None, *, only=None) -> Report:
         level = cfg.pop("level")
         if level == "off":
             continue
-        why = check.applies(brdf)
-        if why:
-            report.outcomes.append(Outcome(name, "skip", detail=why, level=level))
-            continue
-        outcome = check.run(brdf, **cfg)
+        with warnings.catch_warnings():
+            # quadrature and random pairs reach outside a table's domain on purpose: those
+            # points evaluate to NaN and are left out (and counted) by the checks
+            warnings.simplefilter("ignore", BrdftabWarning)
+            why = check.applies(ctx)
+            outcome = check.skip(why) if why else check.run(ctx, **cfg)
         outcome.level = level
+        outcome.family = check.family
         if outcome.status == "fail" and level == "warn":
             outcome.status = "warn"
         report.outcomes.append(outcome)
     return report
 
 
+class ChecksFailed(ValidationError):
+    """A BRDF failed a check at level ``error`` before export (the CLI exits with code 1)."""
+
+    exit_code = 1
+
+
+def stamp(table, report: Report) -> None:
+    """Store a report in a table's metadata (netCDF global attributes): ``validation_passed``,
+    ``validation_summary``, ``validation_report`` (the JSON report) and, when the albedo was
+    computed, ``albedo_theta_i_deg``, ``albedo_values`` (a(θi) per channel, JSON) and
+    ``albedo_white_sky``."""
+    attrs = table.ds.attrs
+    attrs["validation_passed"] = int(report.passed)
+    attrs["validation_summary"] = report.summary()
+    attrs["validation_report"] = json.dumps(report.to_json(), separators=(",", ":"))
+    alb = report.get("albedo")
+    if alb is not None and alb.data.get("theta_i_deg") is not None:
+        attrs["albedo_theta_i_deg"] = json.dumps(alb.data["theta_i_deg"])
+        attrs["albedo_values"] = json.dumps(alb.data["values"])
+        attrs["albedo_white_sky"] = json.dumps(alb.data["white_sky"])
+        attrs["albedo_channels"] = json.dumps(alb.data["channels"])
+
+
+def guard(source, config=None, *, allow_invalid: bool = False, what: str = "", **kwargs) -> Report:
+    """Validate ``source`` before export: run the checks, stamp a table's metadata with the
+    report, and raise :class:`ChecksFailed` (a :class:`~brdftab.errors.ValidationError`, exit
+    code 1) naming the failed checks and their figures unless ``allow_invalid``. ``kwargs`` go to :func:`run_checks`."""
+    report = run_checks(source, config, **kwargs)
+    if hasattr(source, "ds"):
+        stamp(source, report)
+    if not report.passed and not allow_invalid:
+        where = f" {what}" if what else ""
+        raise ChecksFailed(f"refusing to export{where}: {report.summary()} (pass --allow-invalid to write anyway)")
+    return report
+
+
 #: Check modules shipped with brdftab (each registers its checks on import).
-BUILTIN = ("samples",)
+BUILTIN = ("samples", "reciprocity", "energy", "symmetry", "conventions", "tabulation")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")

@@ -1,9 +1,14 @@
-"""Sample audit: NaN, infinite, negative and missing samples of a table.
+"""Sample audit: NaN, infinite, negative and missing samples.
 
-A table may declare samples *missing* (``brdf:valid_min = 0`` — the CF attribute: values
-below it are not data; MERL's negative "no measurement" markers are read this way). Missing
-samples are counted and reported, not treated as negative data; every other sample must be
-finite and non-negative.
+A table may declare samples *missing* (``brdf:valid_min`` — the CF attribute: values below it
+are not data; MERL's negative "no measurement" markers are read this way). Missing samples are
+counted and reported (WARN by default, with a threshold on their fraction), not treated as
+negative data, and the integrals of the other checks leave them out. Every other sample must be
+finite and non-negative. Each finding says how many samples and where the first few are (axis
+coordinates in degrees and the channel).
+
+A model has no samples: it is audited on the direction pairs the other checks sample
+(:func:`~brdftab.checks._pairs.sample_pairs`).
 """
 
 from __future__ import annotations
@@ -11,37 +16,76 @@ from __future__ import annotations
 import numpy as np
 
 from ..params import Param
-from . import Check, Outcome, register
+from . import Check, register
+from ._pairs import fmt_pair, sample_pairs, where_deg
+from ._tables import fmt_where, missing_mask, node_where
 
 __all__ = ["Finite", "NonNegative", "Missing"]
 
+#: Locations listed per finding.
+WHERE = 5
+#: Direction pairs a model is audited on.
+MODEL_PAIRS = 8192
 
-def _is_table(brdf) -> str | None:
-    return None if hasattr(brdf, "values") and hasattr(brdf, "grid") else "not a table (no samples to audit)"
+
+def _table_audit(ctx):
+    def compute():
+        t = ctx.brdf
+        v = np.asarray(t.values)
+        miss = missing_mask(t)
+        with np.errstate(invalid="ignore"):
+            if not miss.any():
+                return {"values": v, "missing": miss, "nan": np.isnan(v), "inf": np.isinf(v), "negative": v < 0}
+            return {"values": v, "missing": miss, "nan": np.isnan(v) & ~miss, "inf": np.isinf(v) & ~miss,
+                    "negative": (v < 0) & ~miss}
+    return ctx.memo("audit", compute)
 
 
-def _counts(table):
-    v = np.asarray(table.values)
-    missing = np.asarray(table.missing) if getattr(table, "missing", None) is not None else np.zeros(v.shape, bool)
-    data = v[~missing]
-    return v.size, data, int(missing.sum())
+def _model_audit(ctx):
+    def compute():
+        wi, wo, _ = sample_pairs(MODEL_PAIRS, seed=1)
+        f = ctx.eval(ctx.brdf, wi, wo)
+        return {"wi": wi, "wo": wo, "f": f}
+    return ctx.memo("model_audit", compute)
+
+
+def _where(ctx, mask):
+    flat = np.flatnonzero(mask.ravel())[:WHERE]
+    labels = ctx.labels()
+    return [node_where(ctx.brdf, i, labels) for i in flat]
+
+
+def _pair_where(a, mask):
+    rows = np.flatnonzero(mask.any(axis=-1))[:WHERE]
+    return [where_deg(a["wi"][r], a["wo"][r]) for r in rows]
 
 
 @register
 class Finite(Check):
     name = "finite"
     family = "samples"
-    summary = "No NaN or infinite samples."
-    applies = staticmethod(_is_table)
+    summary = "No NaN or infinite samples (declared missing samples excepted)."
 
-    def run(self, table):
-        total, data, _ = _counts(table)
-        nan = int(np.isnan(data).sum())
-        inf = int(np.isinf(data).sum())
-        bad = nan + inf
-        return Outcome(self.name, "pass" if bad == 0 else "fail", float(bad), 0.0,
-                       f"{bad} of {total} samples are NaN or infinite ({nan} NaN, {inf} infinite)",
-                       data={"nan": nan, "inf": inf, "samples": total})
+    def run(self, ctx):
+        if ctx.is_table:
+            a = _table_audit(ctx)
+            nan, inf = int(a["nan"].sum()), int(a["inf"].sum())
+            bad = nan + inf
+            total = a["values"].size
+            where = _where(ctx, a["nan"] | a["inf"])
+            at = f"; first at {fmt_where(where[0])}" if where else ""
+            return self.outcome(bad == 0, bad, 0, f"{bad} of {total} samples are NaN or infinite ({nan} NaN, "
+                                f"{inf} infinite){at}", nan=nan, inf=inf, samples=total, where=where)
+        a = _model_audit(ctx)
+        f = a["f"]
+        nan_m, inf_m = np.isnan(f), np.isinf(f)
+        nan, inf = int(nan_m.any(axis=-1).sum()), int(inf_m.any(axis=-1).sum())
+        bad = int((nan_m | inf_m).any(axis=-1).sum())
+        where = _pair_where(a, nan_m | inf_m)
+        at = f"; first at {fmt_pair(where[0])}" if where else ""
+        return self.outcome(bad == 0, bad, 0, f"{bad} of {f.shape[0]} sampled direction pairs give NaN or infinite "
+                            f"values ({nan} NaN, {inf} infinite){at}", nan=nan, inf=inf, pairs=int(f.shape[0]),
+                            where=where)
 
 
 @register
@@ -49,17 +93,29 @@ class NonNegative(Check):
     name = "non-negative"
     family = "samples"
     summary = "No negative samples (declared missing samples excepted)."
-    applies = staticmethod(_is_table)
 
-    def run(self, table):
-        total, data, _ = _counts(table)
+    def run(self, ctx):
+        if ctx.is_table:
+            a = _table_audit(ctx)
+            neg = a["negative"]
+            count = int(neg.sum())
+            total = a["values"].size
+            lowest = float(a["values"][neg].min()) if count else 0.0
+            where = _where(ctx, neg)
+            at = f"; first at {fmt_where(where[0])}" if where else ""
+            return self.outcome(count == 0, count, 0, f"{count} of {total} samples are negative (lowest {lowest:.4g} "
+                                f"sr-1){at}", negative=count, lowest=lowest, samples=total, where=where)
+        a = _model_audit(ctx)
+        f = a["f"]
         with np.errstate(invalid="ignore"):
-            neg = data < 0
-        count = int(neg.sum())
-        lowest = float(data[neg].min()) if count else 0.0
-        return Outcome(self.name, "pass" if count == 0 else "fail", float(count), 0.0,
-                       f"{count} of {total} samples are negative (lowest {lowest:.4g} sr-1)",
-                       data={"negative": count, "lowest": lowest, "samples": total})
+            neg = f < 0
+        count = int(neg.any(axis=-1).sum())
+        lowest = float(f[neg].min()) if count else 0.0
+        where = _pair_where(a, neg)
+        at = f"; first at {fmt_pair(where[0])}" if where else ""
+        return self.outcome(count == 0, count, 0, f"{count} of {f.shape[0]} sampled direction pairs give negative "
+                            f"values (lowest {lowest:.4g} sr-1){at}", negative=count, lowest=lowest,
+                            pairs=int(f.shape[0]), where=where)
 
 
 @register
@@ -70,11 +126,17 @@ class Missing(Check):
     level = "warn"
     thresholds = (Param("max_fraction", "float", "Largest accepted fraction of missing samples.", default=0.0,
                         minimum=0.0, maximum=1.0),)
-    applies = staticmethod(_is_table)
 
-    def run(self, table, max_fraction):
-        total, _, missing = _counts(table)
+    def applies(self, ctx):
+        return None if ctx.is_table else "not a table (no samples)"
+
+    def run(self, ctx, max_fraction):
+        a = _table_audit(ctx)
+        total = a["values"].size
+        missing = int(a["missing"].sum())
         frac = missing / total if total else 0.0
-        return Outcome(self.name, "pass" if frac <= max_fraction else "fail", frac, max_fraction,
-                       f"{missing} of {total} samples are missing ({100 * frac:.3g} %)",
-                       data={"missing": missing, "samples": total})
+        where = _where(ctx, a["missing"])
+        at = f"; first at {fmt_where(where[0])}" if where else ""
+        return self.outcome(frac <= max_fraction, frac, max_fraction,
+                            f"{missing} of {total} samples are missing ({100 * frac:.3g} %, at most "
+                            f"{100 * max_fraction:.3g} % accepted){at}", missing=missing, samples=total, where=where)

@@ -158,8 +158,9 @@ def read(path):
     try:
         return fmt.read(Path(path))
     except BrdftabError as exc:
-        msg = str(exc)
-        raise FormatError(msg if msg.startswith(str(path)) else f"{path}: {msg}") from None
+        if not str(exc).startswith(str(path)):
+            exc.args = (f"{path}: {exc}",)  # same error type, now naming the file
+        raise
 
 
 def target_grid(fmt: FileFormat, requested, options: dict | None = None):
@@ -200,7 +201,12 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
     from ..table import Table
 
     requested = grid if grid is not None else (brdf.grid if isinstance(brdf, Table) else None)
-    payload = prepare(fmt, brdf, target_grid(fmt, requested, options), options)
+    try:
+        payload = prepare(fmt, brdf, target_grid(fmt, requested, options), options)
+    except BrdftabError as exc:
+        if not str(exc).startswith(str(path)):
+            exc.args = (f"{path}: {exc}",)  # same error type, now naming the file
+        raise
     with atomic_path(path, overwrite=overwrite) as tmp:
         with deferred_signals():
             fmt.write(payload, tmp, **options)
@@ -209,7 +215,7 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
 
 #: Format modules shipped with brdftab (each registers itself on import). A module whose
 #: optional library is missing must still import: it imports that library inside functions.
-BUILTIN = ("netcdf",)
+BUILTIN = ("netcdf", "merl", "rgl", "exr")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")

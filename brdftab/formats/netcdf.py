@@ -8,9 +8,13 @@ attributes and brdftab provenance. Values are zlib-compressed; ``dtype`` chooses
 
 from __future__ import annotations
 
+import math
+
+import netCDF4
 import numpy as np
 import xarray as xr
 
+from .._atomic import write_step
 from ..errors import FormatError, ParameterError
 from . import FileFormat, register
 
@@ -20,14 +24,31 @@ MAGIC = (b"\x89HDF\r\n\x1a\n", b"CDF\x01", b"CDF\x02", b"CDF\x05")
 
 
 def read_netcdf(path):
+    """Open a table lazily: metadata now, samples when first evaluated (see :class:`Table`)."""
     from ..table import Table
 
     try:
-        with xr.open_dataset(path, engine="netcdf4") as ds:
-            ds = ds.load()
-    except (OSError, ValueError, RuntimeError) as exc:
-        raise FormatError(f"{path}: not a readable netCDF file ({str(exc).splitlines()[0]})") from None
-    return Table(ds)
+        ds = xr.open_dataset(path, engine="netcdf4", cache=False)
+    except (OSError, ValueError, RuntimeError, KeyError, IndexError, TypeError) as exc:
+        raise FormatError(f"{path}: not a readable netCDF file ({_first_line(exc)})") from None
+    if "brdf" in ds.data_vars:
+        var = ds["brdf"]
+        if var.dtype.kind == "f" and "_FillValue" not in var.encoding and "valid_max" not in var.attrs \
+                and "valid_range" not in var.attrs:
+            # Unwritten parts of a netCDF variable hold the library's default fill value;
+            # by the netCDF convention a positive fill value bounds the valid range.
+            fill = netCDF4.default_fillvals.get(var.dtype.str[1:])
+            if fill is not None:
+                var.attrs["valid_max"] = np.nextafter(np.asarray(fill, var.dtype), np.asarray(0, var.dtype))
+    try:
+        return Table(ds)
+    except (KeyError, ValueError, TypeError, IndexError) as exc:
+        raise FormatError(f"{path}: not a brdftab table ({_first_line(exc)})") from None
+
+
+def _first_line(exc) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
 
 
 def check_options(dtype: str = "float64", complevel: int = 4):
@@ -37,15 +58,63 @@ def check_options(dtype: str = "float64", complevel: int = 4):
         raise ParameterError("complevel", f"expected a whole number 0..9, got {complevel!r}")
 
 
+#: Uncompressed bytes per HDF5 chunk of ``brdf``; the variable is written one chunk at a time.
+CHUNK_BYTES = 1 << 21
+
+
+def _chunking(shape, itemsize: int, target: int | None = None):
+    """``(k, s)``: chunks of shape ``(1,)*k + (s,) + shape[k+1:]`` of about ``target`` bytes."""
+    target = CHUNK_BYTES if target is None else target
+    for k in range(len(shape)):
+        tail = math.prod(shape[k + 1:]) * itemsize
+        if tail <= target:
+            return k, max(1, min(shape[k], target // tail))
+    return len(shape) - 1, 1  # pragma: no cover - the last axis alone always fits
+
+
+def _attr(value):
+    if isinstance(value, (bool, np.bool_)):
+        return int(value)
+    return value
+
+
 def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
+    """Write ``table`` to ``path``: coordinates and attributes through xarray, then ``brdf``
+    chunk by chunk (each chunk a :func:`~brdftab._atomic.write_step`, so progress is shown
+    and an interrupt acts between chunks)."""
     check_options(dtype, complevel)
     ds = table.ds
-    encoding = {"brdf": {"dtype": np.dtype(dtype), "zlib": complevel > 0, "complevel": complevel,
-                         "_FillValue": None}}
+    var = ds["brdf"]
+    encoding = {}
     for name in ds.coords:
         if ds[name].dtype.kind == "f":
             encoding[name] = {"_FillValue": None}
-    ds.to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=encoding)
+    for name in ds.data_vars:  # auxiliary variables (e.g. merl_raw_ulp_correction): compressed, no fill
+        if name != "brdf":
+            encoding[name] = {"zlib": complevel > 0, "complevel": complevel, "_FillValue": None}
+    ds.drop_vars("brdf").to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=encoding)
+
+    store = np.dtype(dtype)
+    k, step = _chunking(var.shape, store.itemsize)
+    chunks = (1,) * k + (step,) + tuple(var.shape[k + 1:])
+    attrs = {key: _attr(v) for key, v in var.attrs.items()}
+    aux = [c for c in ds.coords if c not in ds.dims and set(ds[c].dims) <= set(var.dims)]
+    if aux:
+        attrs["coordinates"] = " ".join(aux)
+    total, done = int(var.size), 0
+    write_step(0, total)
+    with netCDF4.Dataset(path, "a") as nc:
+        nc.set_auto_maskandscale(False)
+        out = nc.createVariable("brdf", store, var.dims, zlib=complevel > 0, complevel=complevel, shuffle=True,
+                                chunksizes=chunks, fill_value=False)
+        out.setncatts(attrs)
+        for lead in np.ndindex(*var.shape[:k]):
+            for start in range(0, var.shape[k], step):
+                idx = lead + (slice(start, start + step),)
+                block = np.asarray(var.variable[idx].values, dtype=store)
+                out[idx] = block
+                done += block.size
+                write_step(done, total)
 
 
 register(FileFormat(

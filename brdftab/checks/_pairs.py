@@ -1,0 +1,127 @@
+"""Direction pairs and asymmetry statistics shared by the checks.
+
+:func:`sample_pairs` draws (wi, wo) pairs for checks on models (and on tables where no node
+pairs exist): wi cosine-weighted, wo from an equal mixture of a cosine-weighted direction and
+mirror reflections of wi about GGX-distributed normals of widths 0.003, 0.03 and 0.3 (so
+narrow specular lobes are visited as well as the diffuse background). Each pair carries the
+importance weight cosθi cosθo / p(wi, wo), so Σ w g / N estimates ∫∫ g cosθi cosθo dωi dωo
+(multiple importance sampling, balance heuristic: E. Veach, PhD thesis, Stanford (1997),
+§9.2).
+
+:func:`asymmetry` compares two evaluations of the same pairs (f and its reflected, swapped or
+rotated twin): the largest and rms relative difference, and the *albedo-weighted* difference
+∫∫ |f − f'| cos cos / ∫∫ ½(f + f') cos cos — the fraction of the reflected energy that differs.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..geometry import vec_to_sph
+from ..models.distributions import d_ggx
+
+__all__ = ["sample_pairs", "asymmetry", "where_deg", "SCALES"]
+
+#: GGX widths of the mirror components of the pair sampler.
+SCALES = (0.003, 0.03, 0.3)
+_Z = 1e-9
+
+
+def _cosine(rng, n):
+    u1, u2 = rng.random(n), rng.random(n)
+    r = np.sqrt(u1)
+    phi = 2 * np.pi * u2
+    return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u1, 0.0))], axis=-1)
+
+
+def _ggx_normals(rng, n, alpha):
+    u1, u2 = rng.random(n), rng.random(n)
+    t = alpha * np.sqrt(u1 / np.maximum(1.0 - u1, 1e-300))
+    c = 1.0 / np.sqrt(1.0 + t * t)
+    s = t * c
+    phi = 2 * np.pi * u2
+    return np.stack([s * np.cos(phi), s * np.sin(phi), c], axis=-1)
+
+
+def mixture_pdf(wi, wo, scales=SCALES):
+    """Density [1/sr] of wo given wi under the sampler's mixture."""
+    h = wi + wo
+    h /= np.linalg.norm(h, axis=-1, keepdims=True)
+    cos_oh = np.einsum("...i,...i->...", wo, h)
+    p = np.maximum(wo[..., 2], 0.0) / np.pi
+    for s in scales:
+        p = p + d_ggx(h, s) * h[..., 2] / (4.0 * np.maximum(cos_oh, 1e-300))
+    return p / (1 + len(scales))
+
+
+def sample_pairs(n: int, seed: int = 0, scales=SCALES):
+    """About ``n`` pairs ``(wi, wo, weight)`` above the horizon (see the module docstring)."""
+    rng = np.random.default_rng(seed)
+    wi = _cosine(rng, n)
+    comp = rng.integers(0, 1 + len(scales), n)
+    wo = _cosine(rng, n)
+    for k, s in enumerate(scales, start=1):
+        sel = comp == k
+        h = _ggx_normals(rng, int(sel.sum()), s)
+        v = wi[sel]
+        wo[sel] = 2.0 * np.einsum("ij,ij->i", v, h)[:, None] * h - v
+    keep = (wi[:, 2] > _Z) & (wo[:, 2] > _Z)
+    wi, wo = wi[keep], wo[keep]
+    weight = np.pi * wo[:, 2] / mixture_pdf(wi, wo, scales)
+    return wi, wo, weight
+
+
+def asymmetry(f1, f2, weight=None, floor: float = 1e-9) -> dict:
+    """Statistics of ``|f1 − f2|`` relative to their mean, over pairs ``[N, C]``.
+
+    Pairs where either value is not finite are left out (counted in ``excluded``); relative
+    differences use pairs whose mean exceeds ``floor`` × the largest mean. Returns
+    ``max_relative``, ``rms_relative``, ``weighted`` (albedo-weighted, needs ``weight``),
+    ``worst`` (row of the pair with the largest relative difference, or None), ``compared``.
+    """
+    f1, f2 = np.asarray(f1), np.asarray(f2)
+    if f1.dtype.kind != "f" or f2.dtype.kind != "f":
+        f1, f2 = f1.astype(float), f2.astype(float)
+    if f1.ndim == 1:
+        f1, f2 = f1[:, None], f2[:, None]
+    ok = np.isfinite(f1) & np.isfinite(f2)
+    excluded = 0
+    if not ok.all():
+        rows_ok = ok.all(axis=1)
+        excluded = int((~rows_ok).sum())
+        f1 = np.where(ok, f1, 0.0)
+        f2 = np.where(ok, f2, 0.0)
+    amean = np.abs(f1 + f2)
+    amean *= 0.5
+    diff = np.abs(f1 - f2)
+    top = float(amean.max()) if amean.size else 0.0
+    sig = amean > max(floor * top, np.finfo(float).tiny)
+    n_sig = int(sig.sum())
+    out = {"compared": int(f1.shape[0]) - excluded, "excluded": excluded, "max_relative": 0.0,
+           "rms_relative": 0.0, "worst": None, "weighted": None}
+    if n_sig:
+        rel = np.divide(diff, amean, out=np.zeros(diff.shape, diff.dtype), where=sig)
+        i = int(np.argmax(rel))
+        out["max_relative"] = float(rel.flat[i])
+        out["worst"] = i // rel.shape[1] if rel.flat[i] > 0 else None
+        out["rms_relative"] = float(np.sqrt(np.einsum("ij,ij->", rel, rel, dtype=float) / n_sig))
+    if weight is not None:
+        w = np.asarray(weight, float)
+        den = w @ amean.astype(float, copy=False) if amean.size else np.zeros(0)
+        num = w @ diff.astype(float, copy=False) if diff.size else np.zeros(0)
+        ratio = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+        out["weighted"] = float(ratio.max()) if ratio.size else 0.0
+    return out
+
+
+def where_deg(wi, wo) -> dict:
+    """(θi, φi, θo, φo) of one pair in degrees, for reports."""
+    ti, pi_ = vec_to_sph(wi)
+    to, po = vec_to_sph(wo)
+    return {"theta_i_deg": round(float(np.degrees(ti)), 4), "phi_i_deg": round(float(np.degrees(pi_)), 4),
+            "theta_o_deg": round(float(np.degrees(to)), 4), "phi_o_deg": round(float(np.degrees(po)), 4)}
+
+
+def fmt_pair(w: dict) -> str:
+    return (f"(θi, φi, θo, φo) = ({w['theta_i_deg']:.3g}°, {w['phi_i_deg']:.3g}°, {w['theta_o_deg']:.3g}°, "
+            f"{w['phi_o_deg']:.3g}°)")

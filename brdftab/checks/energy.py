@@ -1,0 +1,235 @@
+"""Energy conservation and albedo integrals.
+
+``energy``
+    the directional-hemispherical reflectance a(θi) = ∫ f cosθo dωo (+ any ideal specular
+    coefficient) must not exceed 1 + tolerance anywhere on a sweep of θi from 0 to 89° (and of
+    φi over the circle when the BRDF is anisotropic). When a table exceeds it but the model it
+    was made from (given, or named in its provenance) does not, the excess is the table's
+    interpolation of a peaked lobe, not an energy gain of the source: the check then WARNs
+    instead of failing (the tabulation check measures that error).
+``albedo``
+    reports the a(θi) curve and the white-sky (bihemispherical) albedo; with ``expected``
+    values (a number for every θi, or a list at ``expected_theta_i_deg``) and/or
+    ``white_sky``, compares them within ``tolerance``.
+
+Both use :func:`brdftab.integrate.albedo_curve` on the same sweep and share the result.
+Missing samples are left out of the integrals; the smallest covered fraction of the
+projected solid angle is reported.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..integrate import DEFAULT_NODES, albedo_curve, directional_albedo
+from ..params import Kind, Param, register_kind
+from . import Check, register
+from ._reference import reference
+
+__all__ = ["Energy", "Albedo", "sweep", "curve"]
+
+
+class _FloatsKind(Kind):
+    """A number or a non-empty list of finite numbers (stored as a tuple)."""
+
+    name = "floats"
+
+    def expected(self, p):
+        return "a number or a list of numbers"
+
+    def convert(self, p, value):
+        vals = value if isinstance(value, (list, tuple)) else [value]
+        if not vals or any(isinstance(v, bool) or not isinstance(v, (int, float, np.number)) for v in vals):
+            raise ParameterError(p.name, f"expected {self.expected(p)}, got {value!r}")
+        arr = np.asarray(vals, float)
+        if not np.all(np.isfinite(arr)) or not p.in_range(arr):
+            rng = p.range_text()
+            raise ParameterError(p.name, f"expected finite numbers{' ' + rng if rng else ''}, got {value!r}")
+        return tuple(float(v) for v in arr)
+
+    def to_json(self, value):
+        return list(value)
+
+
+register_kind(_FloatsKind())
+
+_SWEEP = (
+    Param("theta_i_max", "float", "Largest incidence angle of the sweep.", units="rad", default=float(np.radians(89.0)),
+          minimum=0.0, maximum=float(np.radians(89.99)), angle=True),
+    Param("n_theta_i", "int", "Incidence angles in the sweep (equally spaced from 0).", default=90, minimum=1,
+          maximum=10_000),
+    Param("n_phi_i", "int", "Incidence azimuths over the circle (anisotropic BRDFs only).", default=8, minimum=1,
+          maximum=1000),
+)
+
+
+def sweep(ctx, theta_i_max, n_theta_i, n_phi_i):
+    """Incidence angles and azimuths of the sweep [rad]. A table with incidence axes (a gonio
+    table) is swept only inside their domain, plus its own incidence nodes."""
+    theta = np.linspace(0.0, theta_i_max, n_theta_i)
+    b = ctx.brdf
+    phi = np.array([0.0]) if b.isotropic else np.arange(n_phi_i) * (2 * np.pi / n_phi_i)
+    grid = b.grid if ctx.on_grid else None
+    if grid is not None and "theta_i" in grid.dims:
+        ax = grid.axes[grid.dims.index("theta_i")]
+        nodes = ax.values[ax.values <= theta_i_max + 1e-12]
+        theta = np.unique(np.concatenate([theta[~ax.outside(theta)], nodes]))
+        if theta.size == 0:
+            theta = ax.values[:1]
+        pax = grid.axes[grid.dims.index("phi_i")]
+        if not b.isotropic:
+            phi = np.unique(np.concatenate([phi[~pax.outside(phi)], pax.values]))
+    return theta, phi
+
+
+def curve(ctx, theta_i_max, n_theta_i, n_phi_i):
+    """The shared albedo curve of this run for a sweep (computed once). The white-sky albedo
+    is NaN unless the sweep runs from 0 to at least 80°."""
+    theta, phi = sweep(ctx, theta_i_max, n_theta_i, n_phi_i)
+    key = ("albedo_curve", tuple(theta), tuple(phi), DEFAULT_NODES)
+
+    def compute():
+        c = albedo_curve(ctx.brdf, theta, phi, ctx.wavelengths)
+        if theta[0] > 1e-9 or theta[-1] < np.radians(80.0):
+            c.white_sky = np.full_like(c.white_sky, np.nan)
+        return c
+    return ctx.memo(key, compute)
+
+
+def _ws_text(c):
+    if np.all(np.isnan(c.white_sky)):
+        return (f"white-sky albedo not computed (θi covers {np.degrees(c.theta_i[0]):.4g}.."
+                f"{np.degrees(c.theta_i[-1]):.4g}° only)")
+    return "white-sky albedo " + ", ".join(f"{x:.4g}" for x in c.white_sky)
+
+
+def _coverage_note(c):
+    cmin = float(np.min(c.coverage)) if c.coverage.size else 1.0
+    if cmin >= 1.0 - 1e-9:
+        return cmin, ""
+    return cmin, (f"; missing samples left out: the integrals cover at least {100 * cmin:.3g} % of the projected "
+                  "solid angle")
+
+
+@register
+class Energy(Check):
+    name = "energy"
+    family = "energy"
+    summary = "Energy conservation: a(θi) = ∫ f cosθo dωo ≤ 1 + tolerance on a sweep of θi (and φi)."
+    thresholds = (
+        Param("tolerance", "float", "Accepted excess of a(θi) over 1 (tables interpolate peaked lobes with some "
+              "overshoot: a Beckmann α = 0.05 lobe on the MERL grid integrates to 1.006).", default=0.01, minimum=0.0),
+    ) + _SWEEP
+
+    def run(self, ctx, tolerance, theta_i_max, n_theta_i, n_phi_i):
+        c = curve(ctx, theta_i_max, n_theta_i, n_phi_i)
+        labels = ctx.labels()
+        top = c.max
+        ti, pi_, ch = c.argmax()
+        cmin, note = _coverage_note(c)
+        limit = 1.0 + tolerance
+        bad = int(np.sum(c.values > limit))
+        az = f", φi = {np.degrees(pi_):.4g}°" if c.phi_i.size > 1 else ""
+        over = f"; {bad} of {c.values.size} values above" if bad else ""
+        data = dict(theta_i_deg=round(float(np.degrees(ti)), 6), phi_i_deg=round(float(np.degrees(pi_)), 6),
+                    channel=labels[ch], above=bad, coverage_min=cmin,
+                    sweep={"theta_i_max_deg": float(np.degrees(theta_i_max)), "n_theta_i": n_theta_i,
+                           "n_phi_i": int(c.phi_i.size)})
+        detail = (f"max a(θi) = {top:.6g} at θi = {np.degrees(ti):.4g}°{az}, channel {labels[ch]} "
+                  f"(accepted ≤ {limit:.6g}){over}; {_ws_text(c)}{note}")
+        out = self.outcome(top <= limit, top, limit, detail, **data)
+        if top > limit and ctx.is_table:
+            # Is the excess the source's, or the table's interpolation of it?
+            model, _ = reference(ctx)
+            if model is not None:
+                lam = ctx.wavelengths if ctx.wavelengths is not None else (
+                    ctx.brdf.wavelengths if ctx.brdf.spectral else None)
+                mc = ctx.memo(("albedo_curve_source", tuple(c.theta_i), tuple(c.phi_i)),
+                              lambda: albedo_curve(model, c.theta_i, c.phi_i, lam))
+                out.data["source_max"] = mc.max
+                if mc.max <= limit:
+                    out.status = "warn"
+                    out.detail = (f"the table's interpolation gives {detail}, but its source model {model.name} "
+                                  f"reaches only {mc.max:.6g}: tabulation error, not an energy gain of the source "
+                                  "(see the tabulation check; a finer grid reduces it)")
+                else:
+                    out.detail += f"; the source model {model.name} reaches {mc.max:.6g}"
+        return out
+
+
+@register
+class Albedo(Check):
+    name = "albedo"
+    family = "energy"
+    summary = ("Albedo integrals: the a(θi) curve and the white-sky albedo; optional expected values compared "
+               "within a tolerance.")
+    thresholds = (
+        Param("expected", "floats", "Expected a(θi): one number for every θi of the sweep, or a list at "
+              "expected_theta_i_deg.", default=None, minimum=0.0),
+        Param("expected_theta_i", "floats", "Incidence angles of a list of expected values.", units="rad",
+              default=None, minimum=0.0, maximum=float(np.pi / 2), angle=True),
+        Param("white_sky", "float", "Expected white-sky (bihemispherical) albedo.", default=None, minimum=0.0),
+        Param("tolerance", "float", "Accepted absolute difference from the expected values.", default=0.01,
+              minimum=0.0),
+    ) + _SWEEP
+
+    def check_config(self, cfg):
+        exp, at = cfg.get("expected"), cfg.get("expected_theta_i")
+        if at is not None and exp is None:
+            raise ParameterError("expected_theta_i_deg", "given without expected values")
+        if exp is not None and len(exp) > 1 and (at is None or len(at) != len(exp)):
+            raise ParameterError("expected", "a list of expected values needs expected_theta_i_deg of the same "
+                                 "length")
+        if exp is not None and at is not None and len(exp) == 1 and len(at) != 1:
+            raise ParameterError("expected", "give one expected value per angle of expected_theta_i_deg")
+
+    def run(self, ctx, expected, expected_theta_i, white_sky, tolerance, theta_i_max, n_theta_i, n_phi_i):
+        c = curve(ctx, theta_i_max, n_theta_i, n_phi_i)
+        labels = ctx.labels()
+        mean_phi = c.values.mean(axis=1)
+        cmin, note = _coverage_note(c)
+        data = {"theta_i_deg": np.degrees(c.theta_i).round(6).tolist(), "channels": labels,
+                "values": mean_phi.tolist(), "coverage": c.coverage.min(axis=(1, 2)).tolist(),
+                "white_sky": c.white_sky.tolist(), "coverage_min": cmin}
+        if c.phi_i.size > 1:
+            data["phi_i_deg"] = np.degrees(c.phi_i).tolist()
+            data["values_phi"] = c.values.tolist()
+        a0 = ", ".join(f"{x:.4g}" for x in mean_phi[0])
+        text = f"{_ws_text(c)}; a({np.degrees(c.theta_i[0]):.4g}°) = {a0}"
+        if expected is None and white_sky is None:
+            top = float(np.max(c.white_sky)) if not np.all(np.isnan(c.white_sky)) else None
+            return self.outcome(True, top, None, text + note, **data)
+        devs = []
+        parts = []
+        if expected is not None:
+            if expected_theta_i is None:
+                got = c.values
+                exp = np.asarray(expected[0])
+                at_deg = np.degrees(c.theta_i)
+                where = "every θi of the sweep"
+            else:
+                th = np.asarray(expected_theta_i, float)
+                phi = c.phi_i
+                got = ctx.memo(("albedo_at", tuple(th), tuple(phi)), lambda: directional_albedo(
+                    ctx.brdf, th[:, None], phi[None, :], ctx.wavelengths))
+                exp = np.asarray(expected, float)[:, None, None]
+                at_deg = np.degrees(th)
+                where = f"θi = {', '.join(f'{x:g}' for x in at_deg)}°"
+            dev = np.abs(got - exp)
+            i = np.unravel_index(int(np.nanargmax(dev)), dev.shape)
+            devs.append(float(dev[i]))
+            data["expected_theta_i_deg"] = np.asarray(at_deg).tolist()
+            data["expected"] = list(expected)
+            parts.append(f"a(θi) differs from the expected values at {where} by up to {dev[i]:.3g} "
+                         f"(at θi = {at_deg[i[0]]:.4g}°, channel {labels[i[-1]]})")
+        if white_sky is not None:
+            if np.all(np.isnan(c.white_sky)):
+                return self.skip(f"expected white-sky albedo given, but {_ws_text(c)}", **data)
+            dev = np.abs(c.white_sky - white_sky)
+            devs.append(float(dev.max()))
+            data["expected_white_sky"] = white_sky
+            parts.append(f"white-sky albedo differs from {white_sky:g} by up to {dev.max():.3g}")
+        top = max(devs)
+        return self.outcome(top <= tolerance, top, tolerance,
+                            "; ".join(parts) + f" (accepted {tolerance:g}); {text}{note}", **data)

@@ -1,0 +1,170 @@
+"""Reciprocity: f(wi, wo) = f(wo, wi) (Helmholtz reciprocity).
+
+* Models are compared on random direction pairs (:func:`~brdftab.checks._pairs.sample_pairs`).
+* Tables are compared on exact node pairs where the grid has them: a Rusinkiewicz table with
+  ``phi_d_fold = none`` pairs φd with φd + π (swapping wi and wo keeps h and maps d to
+  (−dx, −dy, dz)); with ``bilateral`` it pairs φd with π − φd; a gonio table pairs
+  (θi, φi, θo, φo) with (θo, φo, θi, φi) (rotated about the normal when the table is isotropic
+  and has one φi). A table folded by reciprocity is reciprocal by construction (whether its
+  source was is the ``conventions`` check's question). Otherwise the table is interpolated at
+  random pairs inside the region it covers, and only the albedo-weighted figure is judged,
+  against its own looser threshold (``weighted_interpolated``: the table's interpolation error
+  counts as asymmetry there).
+
+Figures: the largest and rms relative asymmetry |f − f'| / ½(f + f'), and the albedo-weighted
+asymmetry ∫∫ |f − f'| cos cos / ∫∫ ½(f + f') cos cos. Missing samples are left out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..params import Param
+from . import Check, register
+from ._pairs import asymmetry, fmt_pair, sample_pairs, where_deg
+from ._tables import data_values, gonio_node_weights, match_axis, node_where, phi_d_pairs
+
+__all__ = ["Reciprocity", "covered"]
+
+
+def covered(table, wi, wo) -> np.ndarray:
+    """True for pairs inside the table's domain (:meth:`~brdftab.grids.Grid.locate`)."""
+    _, outside = table.grid.locate(wi, wo, isotropic=table.isotropic)
+    return ~np.asarray(outside, bool)
+
+
+def _node_pairs_rusinkiewicz(table, v):
+    """Rows (f, f', w, flat) pairing every node with its φd partner, or None."""
+    grid = table.grid
+    fold = grid.phi_d_fold
+    ax = grid.axes[grid.dims.index("phi_d")]
+    if fold == "none":
+        target = ax.values + np.pi
+    elif fold == "bilateral":
+        target = np.pi - ax.values
+    else:
+        return None
+    j = match_axis(ax, target)
+    if np.any(j < 0):
+        return None
+    return phi_d_pairs(grid, v, j)
+
+
+def _node_pairs_spherical(table, v):
+    """(partner values, weights) for the (θi, φi) ↔ (θo, φo) partner of every node, or None."""
+    grid = table.grid
+    if grid.relative_to != "none":
+        return None
+    a_ti, a_pi, a_to, a_po = grid.axes
+    ia = match_axis(a_ti, a_to.values)          # θi index of each θo node
+    ic = match_axis(a_to, a_ti.values)          # θo index of each θi node
+    if table.isotropic:
+        # f(θi, φi_b, θo, φo_d) = f(θo, φi_0, θi, φi_b − φo_d + φi_0)
+        jb = np.zeros((len(a_pi), len(a_po)), int)
+        jd = match_axis(a_po, (a_pi.values[:, None] - a_po.values[None, :] + a_pi.values[0]).ravel())
+        jd = jd.reshape(len(a_pi), len(a_po))
+    else:
+        jb = np.broadcast_to(match_axis(a_pi, a_po.values)[None, :], (len(a_pi), len(a_po)))
+        jd = np.broadcast_to(match_axis(a_po, a_pi.values)[:, None], (len(a_pi), len(a_po)))
+    A = ic[:, None, None, None]
+    B = jb[None, :, None, :]
+    Cc = ia[None, None, :, None]
+    D = jd[None, :, None, :]
+    valid = (A >= 0) & (B >= 0) & (Cc >= 0) & (D >= 0)
+    valid = np.broadcast_to(valid, grid.shape)
+    if not valid.any():
+        return None
+    # partner value at (θi', φi', θo', φo') = (θo_c, φ(b, d), θi_a, φ(b, d))
+    Ii = np.broadcast_to(np.where(Cc >= 0, Cc, 0), grid.shape)
+    Ip = np.broadcast_to(np.where(B >= 0, B, 0), grid.shape)
+    Io = np.broadcast_to(np.where(A >= 0, A, 0), grid.shape)
+    Iq = np.broadcast_to(np.where(D >= 0, D, 0), grid.shape)
+    partner = v[Ii, Ip, Io, Iq]
+    w = np.where(valid, gonio_node_weights(grid), 0.0)
+    partner = np.where(valid[..., None], partner, np.nan)
+    c = v.shape[-1]
+    return v.reshape(-1, c), partner.reshape(-1, c), w.reshape(-1), lambda row: int(row)
+
+
+@register
+class Reciprocity(Check):
+    name = "reciprocity"
+    family = "reciprocity"
+    summary = "f(wi, wo) = f(wo, wi): largest, rms and albedo-weighted relative asymmetry."
+    thresholds = (
+        Param("max_relative", "float", "Largest accepted relative asymmetry |f(wi,wo) − f(wo,wi)| / their mean "
+              "(judged where the pairs are exact: models and table node pairs).", default=1e-6, minimum=0.0),
+        Param("weighted", "float", "Largest accepted albedo-weighted asymmetry "
+              "∫∫|f − f'| cosθi cosθo / ∫∫ ½(f + f') cosθi cosθo.", default=1e-3, minimum=0.0),
+        Param("weighted_interpolated", "float", "Largest accepted albedo-weighted asymmetry of a table without node "
+              "pairs, compared by interpolation (its interpolation error counts as asymmetry).", default=0.05,
+              minimum=0.0),
+        Param("pairs", "int", "Random direction pairs (models, and tables without node pairs).", default=16384,
+              minimum=16, maximum=10_000_000),
+        Param("seed", "int", "Seed of the random direction pairs.", default=0, minimum=0),
+    )
+
+    def run(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed):
+        b = ctx.brdf
+        declared = "" if b.reciprocal else " (declared non-reciprocal)"
+        if ctx.on_grid:
+            fold = getattr(b.grid, "phi_d_fold", "none")
+            if "reciprocity" in fold:
+                return self.outcome(True, 0.0, max_relative, f"reciprocal by construction (phi_d_fold = '{fold}')",
+                                    mode="fold", max_relative=0.0, rms_relative=0.0, weighted=0.0)
+            v = data_values(ctx)
+            nodes = (_node_pairs_rusinkiewicz(b, v) if b.grid.parameterization == "rusinkiewicz"
+                     else _node_pairs_spherical(b, v))
+            if nodes is not None:
+                return self._nodes(ctx, nodes, max_relative, weighted, declared)
+        return self._sampled(ctx, max_relative, weighted, weighted_interpolated, pairs, seed, declared)
+
+    def _nodes(self, ctx, nodes, max_relative, weighted, declared):
+        t = ctx.brdf
+        f1, f2, w, flat = nodes
+        c = f1.shape[-1]
+        s = asymmetry(f1, f2, w)
+        ok = s["max_relative"] <= max_relative and s["weighted"] <= weighted
+        at = ""
+        if s["worst"] is not None:
+            where = node_where(t, flat(s["worst"]) * c, ctx.labels())
+            where.pop("channel", None)
+            at = " at " + ", ".join(f"{k[:-4]} = {x:.4g}°" for k, x in where.items())
+            s["where"] = where
+        s.pop("worst")
+        return self.outcome(ok, s["max_relative"], max_relative,
+                            f"max relative asymmetry {s['max_relative']:.3g}{at}, rms {s['rms_relative']:.3g}, "
+                            f"albedo-weighted {s['weighted']:.3g} over {s['compared']} node pairs "
+                            f"(accepted: {max_relative:g} / {weighted:g}){declared}",
+                            mode="nodes", weighted_threshold=weighted, **s)
+
+    def _sampled(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed, declared):
+        b = ctx.brdf
+        wi, wo, w = ctx.memo(("pairs", pairs, seed), lambda: sample_pairs(pairs, seed))
+        interp = ctx.is_table
+        if ctx.on_grid:
+            keep = covered(b, wi, wo) & covered(b, wo, wi)
+            if not keep.any():
+                return self.skip("the table covers no direction pair together with its reverse")
+            wi, wo, w = wi[keep], wo[keep], w[keep]
+        f1 = ctx.eval(b, wi, wo)
+        f2 = ctx.eval(b, wo, wi)
+        s = asymmetry(f1, f2, w)
+        worst = s.pop("worst")
+        at = ""
+        if worst is not None:
+            s["where"] = where_deg(wi[worst], wo[worst])
+            at = f" at {fmt_pair(s['where'])}"
+        if interp:
+            ok = s["weighted"] <= weighted_interpolated
+            return self.outcome(ok, s["weighted"], weighted_interpolated,
+                                f"albedo-weighted asymmetry {s['weighted']:.3g} (accepted {weighted_interpolated:g}), "
+                                f"max relative {s['max_relative']:.3g}{at}, rms {s['rms_relative']:.3g}, "
+                                f"by interpolation at {s['compared']} random pairs{declared}", mode="interpolated",
+                                weighted_threshold=weighted_interpolated, **s)
+        ok = s["max_relative"] <= max_relative and s["weighted"] <= weighted
+        return self.outcome(ok, s["max_relative"], max_relative,
+                            f"max relative asymmetry {s['max_relative']:.3g}{at}, rms {s['rms_relative']:.3g}, "
+                            f"albedo-weighted {s['weighted']:.3g} over {s['compared']} random pairs "
+                            f"(accepted: {max_relative:g} / {weighted:g}){declared}",
+                            mode="pairs", weighted_threshold=weighted, **s)

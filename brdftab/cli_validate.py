@@ -1,0 +1,198 @@
+"""``brdftab validate FILE|SPEC …``: physics checks as a CI gate.
+
+Each path (or glob) is a table file in any format brdftab reads, or a spec (``.toml``): a spec
+is tabulated on each of its target grids, as ``brdftab tabulate`` would, and checked without
+writing anything. Thresholds come from the defaults, then a spec's ``[validation]`` table,
+then ``--config FILE`` (its ``[validation]`` table), then ``--level`` / ``--set``.
+
+Output: one line per check (PASS / WARN / FAIL / SKIP with its figure), or ``--json`` (the
+document :data:`brdftab.checks.SCHEMA_PATH` describes), and ``--junit PATH`` for CI
+dashboards. Exit code 0 when every check passed (warnings allowed), 1 when a check failed, 2
+when an input could not be read or an option is wrong.
+"""
+
+from __future__ import annotations
+
+import glob
+import json
+import sys
+from pathlib import Path
+
+import click
+
+from .errors import BrdftabError, ParameterError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["validate", "cli_layer", "expand_paths"]
+
+_MAGIC = set("*?[")
+
+
+def expand_paths(patterns) -> tuple:
+    """(paths, errors): each pattern as it is, or the sorted matches of a glob (``**`` recurses)."""
+    paths, errors = [], []
+    for pat in patterns:
+        if _MAGIC & set(pat):
+            hits = sorted(glob.glob(pat, recursive=True))
+            if not hits:
+                errors.append((pat, BrdftabError(f"{pat}: no file matches")))
+            paths += [Path(h) for h in hits if not Path(h).is_dir()]
+        else:
+            paths.append(Path(pat))
+    return paths, errors
+
+
+def _value(text: str):
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+def cli_layer(levels=(), settings=()) -> dict:
+    """A configuration layer from ``--level CHECK=LEVEL`` and ``--set CHECK.NAME=VALUE`` (values
+    are TOML: numbers, lists, strings)."""
+    from .checks import configure
+
+    layer: dict = {}
+    for item in levels:
+        name, sep, level = item.partition("=")
+        if not sep or not name:
+            raise BrdftabError(f"--level expects CHECK=LEVEL (off, warn or error), got {item!r}")
+        layer.setdefault(name.strip(), {})["level"] = level.strip()
+    for item in settings:
+        key, sep, text = item.partition("=")
+        check, dot, name = key.strip().partition(".")
+        if not sep or not dot or not check or not name:
+            raise BrdftabError(f"--set expects CHECK.THRESHOLD=VALUE (e.g. energy.tolerance=0.01), got {item!r}")
+        layer.setdefault(check, {})[name] = _value(text.strip())
+    try:
+        configure(layer)
+    except ParameterError as exc:
+        raise BrdftabError(f"--level/--set {exc}") from None
+    return layer
+
+
+def _config_file(path: Path) -> dict:
+    from .checks import configure
+
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+    except FileNotFoundError:
+        raise BrdftabError(f"--config {path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise BrdftabError(f"--config {path}: cannot read ({exc})") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise BrdftabError(f"--config {path}: invalid TOML: {exc}") from None
+    layer = raw.get("validation", raw)
+    if not isinstance(layer, dict):
+        raise BrdftabError(f"--config {path}: expected a [validation] table")
+    layer = {k: v for k, v in layer.items() if k != "allow_invalid"}
+    try:
+        configure(layer)
+    except ParameterError as exc:
+        raise BrdftabError(f"--config {path}: validation.{exc}") from None
+    return layer
+
+
+def _check_one(path: Path, layers, progress):
+    """Reports for one input (a spec or a table file)."""
+    import warnings
+
+    from . import formats
+    from .checks import run_checks
+    from .errors import BrdftabWarning
+
+    if path.suffix.lower() == ".toml":
+        from .pipeline import validate as validate_spec
+        from .spec import load_spec
+
+        spec = load_spec(path)
+        return validate_spec(spec, checks=layers, progress=progress)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BrdftabWarning)
+        table = formats.read(path)
+    return [run_checks(table, layers, subject=str(path))]
+
+
+def list_checks() -> str:
+    from .checks import CHECKS
+
+    lines = []
+    for name, c in CHECKS.items():
+        lines.append(f"{name} [{c.family}, default level {c.level}]: {c.summary}")
+        for p in c.thresholds:
+            default = p.default
+            if p.angle and isinstance(default, float):
+                import math
+
+                default = round(math.degrees(default), 6)
+            lines.append(f"    {p.spec_key} = {default!r}: {p.doc}")
+    return "\n".join(lines)
+
+
+@click.command("validate")
+@click.argument("paths", nargs=-1)
+@click.option("--json", "as_json", is_flag=True,
+              help="Print a JSON document (schema: brdftab/checks/report.schema.json) instead of text.")
+@click.option("--junit", type=click.Path(dir_okay=False, path_type=Path), metavar="PATH",
+              help="Also write JUnit XML to PATH (testsuite per input, testcase per check).")
+@click.option("--level", "levels", multiple=True, metavar="CHECK=LEVEL",
+              help="Set a check's level: off, warn or error (repeatable).")
+@click.option("--set", "settings", multiple=True, metavar="CHECK.NAME=VALUE",
+              help="Set a threshold, e.g. energy.tolerance=0.005 or albedo.expected=0.8 (repeatable; angles as "
+                   "NAME_deg).")
+@click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
+              help="A TOML file whose [validation] table applies to every input (over a spec's own).")
+@click.option("--list-checks", "list_checks_", is_flag=True,
+              help="List the checks, their levels and thresholds, and exit.")
+@click.option("--progress/--no-progress", default=False, help="Progress bar while a spec is tabulated.")
+@click.pass_context
+def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_checks_, progress):
+    """Check BRDF tables and specs: reciprocity, energy, albedo, sample audit, symmetry,
+    conventions and tabulation error.
+
+    PATHS are table files or spec files (.toml); globs are expanded. Exit code 0 when every
+    check passed (warnings allowed), 1 when a check failed, 2 when an input could not be read.
+    """
+    from .checks import junit_xml, run_document
+
+    if list_checks_:
+        click.echo(list_checks())
+        return
+    if not paths:
+        raise BrdftabError("validate: give one or more table files or specs (or --list-checks)")
+    layers = []
+    if config_file is not None:
+        layers.append(_config_file(config_file))
+    layers.append(cli_layer(levels, settings))
+    if junit is not None and not junit.parent.exists():
+        raise BrdftabError(f"--junit {junit}: no such folder {junit.parent}")
+    inputs, errors = expand_paths(paths)
+    reports = []
+    for path in inputs:
+        try:
+            reports += _check_one(path, layers, progress)
+        except BrdftabError as exc:
+            errors.append((str(path), exc))
+        except OSError as exc:
+            errors.append((str(path), BrdftabError(f"{path}: {exc.strerror or exc}")))
+    for subject, exc in errors:
+        click.echo(f"brdftab: error: {' '.join(str(exc).split())}", err=True)
+    if as_json:
+        click.echo(json.dumps(run_document(reports, errors), indent=1))
+    else:
+        for r in reports:
+            click.echo(r.to_text())
+        if len(reports) + len(errors) > 1:
+            failed = sum(not r.passed for r in reports)
+            click.echo(f"{len(reports)} checked: {len(reports) - failed} passed, {failed} failed; "
+                       f"{len(errors)} could not be read")
+    if junit is not None:
+        junit.write_text(junit_xml(reports, errors), encoding="utf-8")
+    code = 2 if errors else (1 if any(not r.passed for r in reports) else 0)
+    ctx.exit(code)

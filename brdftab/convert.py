@@ -1,0 +1,465 @@
+"""Convert a table file to another format or grid: ``brdftab convert IN OUT``.
+
+Any readable format to any writable one (:mod:`brdftab.formats`; nothing here names a
+format). The steps:
+
+1. the output is checked and claimed before any work (:func:`brdftab._atomic.claim`): it may
+   not be the input (through links either), may not exist unless ``overwrite``, and may not be
+   claimed by another run;
+2. the input is read and validated (:func:`brdftab.checks.run_checks`); a failed check
+   refuses the conversion (exit code 1) unless ``allow_invalid``;
+3. the target grid is the one asked for (``grid``), else the input's own, as the output
+   format stores it (:func:`brdftab.formats.target_grid`: MERL always stores the MERL grid);
+4. if the input has fewer symmetries than the target grid assumes (an anisotropic table onto
+   an isotropic grid, a non-reciprocal one onto a grid folded by reciprocity), it must be
+   averaged into them: refused unless ``fold`` is given, which averages over rotations about
+   the normal and/or over swapping wi and wo;
+5. a table whose grid equals the target grid is copied; otherwise it is tabulated (resampled)
+   on the target grid, and the conversion reports how far the written table is from the
+   input at a few thousand random direction pairs in the written table's domain
+   (:class:`Difference`);
+6. the output is written atomically (:func:`brdftab.formats.write`).
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import formats
+from ._atomic import check_target, claim, terminate_as_interrupt, write_progress
+from .brdf import BRDF
+from .errors import BrdftabError, ParameterError, ValidationError
+from .grids import Grid
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["Conversion", "Difference", "InvalidSource", "convert", "grid_option", "grid_file", "format_option",
+           "difference", "check_points", "CHECK_POINTS", "PHI_H_SAMPLES"]
+
+#: Random direction pairs at which a resampled table is compared with its source.
+CHECK_POINTS = 4096
+#: Rotations about the normal averaged when an anisotropic source without a uniform φh axis is
+#: folded onto an isotropic grid.
+PHI_H_SAMPLES = 36
+
+
+class InvalidSource(ValidationError):
+    """The input table failed a validation check (``brdftab convert`` exits with 1)."""
+
+    exit_code = 1
+
+
+@dataclass
+class Difference:
+    """How far the written table is from the source: relative differences
+    ``|written − source| / max(|source|, 1e-6 · max|source|)`` over ``points`` check points
+    (pairs where either is NaN, i.e. outside a domain or missing, are left out)."""
+
+    max_rel: float
+    rms_rel: float
+    points: int
+    requested: int
+
+    def to_json(self) -> dict:
+        return {"max_relative_difference": self.max_rel, "rms_relative_difference": self.rms_rel,
+                "check_points": self.points, "check_points_requested": self.requested}
+
+
+@dataclass
+class Conversion:
+    """What :func:`convert` did."""
+
+    source: Path
+    target: Path
+    format: str
+    source_grid: str
+    target_grid: str
+    resampled: bool
+    folded: list = field(default_factory=list)
+    difference: Difference | None = None
+    note: str = ""
+    report: object = None
+    written: object = None
+
+    def to_json(self) -> dict:
+        return {"source": str(self.source), "target": str(self.target), "format": self.format,
+                "source_grid": self.source_grid, "target_grid": self.target_grid, "resampled": self.resampled,
+                "folded": list(self.folded), "difference": self.difference.to_json() if self.difference else None,
+                "note": self.note, "checks": _checks_json(self.report)}
+
+
+def _checks_json(report):
+    if report is None:
+        return None
+    return {"passed": report.passed, "failed": [o.to_json() for o in report.failures],
+            "warned": [o.to_json() for o in report.warnings]}
+
+
+# --------------------------------------------------------------------------------------------
+# command-line forms of a grid and of format options
+
+GRID_HELP = ("a grid type ('merl', 'rusinkiewicz', ...) with its defaults, or a TOML inline table of [grid] keys "
+             "such as '{type = \"rusinkiewicz\", n_theta_h = 45}' (the braces may be left out)")
+
+
+def grid_option(text: str) -> dict:
+    """The ``[grid]`` table that ``--grid TEXT`` describes (see :data:`GRID_HELP`)."""
+    text = text.strip()
+    if text.replace("-", "_").isidentifier():
+        return {"type": text}
+    body = text if text.startswith("{") else "{" + text + "}"
+    try:
+        return dict(tomllib.loads(f"grid = {body}")["grid"])
+    except (tomllib.TOMLDecodeError, KeyError, TypeError) as exc:
+        raise BrdftabError(f"--grid {text!r}: expected {GRID_HELP} ({exc})") from None
+
+
+def grid_file(path) -> dict:
+    """The ``[grid]`` table of a TOML file (a spec file works too: only ``[grid]`` is read)."""
+    path = Path(path)
+    try:
+        raw = tomllib.loads(path.read_bytes().decode("utf-8-sig"))
+    except FileNotFoundError:
+        raise BrdftabError(f"{path}: no such grid file") from None
+    except OSError as exc:
+        raise BrdftabError(f"{path}: cannot read ({exc.strerror})") from None
+    except UnicodeDecodeError:
+        raise BrdftabError(f"{path}: not a UTF-8 text file") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise BrdftabError(f"{path}: invalid TOML: {exc}") from None
+    except RecursionError:
+        raise BrdftabError(f"{path}: values nested too deeply") from None
+    cfg = raw.get("grid")
+    if not isinstance(cfg, dict):
+        raise BrdftabError(f"{path}: no [grid] table")
+    return cfg
+
+
+def format_option(text: str) -> tuple:
+    """``KEY=VALUE`` of ``--option``: VALUE is a TOML value (``9``, ``true``, ``[0, 90]``), else text."""
+    key, sep, value = text.partition("=")
+    key = key.strip()
+    if not sep or not key:
+        raise BrdftabError(f"--option {text!r}: expected KEY=VALUE, e.g. dtype=float32")
+    value = value.strip()
+    try:
+        parsed = tomllib.loads(f"v = {value}")["v"]
+    except (tomllib.TOMLDecodeError, RecursionError):
+        parsed = value
+    return key, parsed
+
+
+def _build_grid(cfg: dict, where: str):
+    from .grids import grid_from_config
+
+    try:
+        grid = grid_from_config(cfg)
+    except ParameterError as exc:
+        raise BrdftabError(f"{where}: {exc.key}: {exc.detail}" if exc.key else f"{where}: {exc.detail}") from None
+    lam = cfg.get("wavelengths_nm")
+    if lam is not None:
+        if (not isinstance(lam, list) or not lam
+                or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in lam)):
+            raise BrdftabError(f"{where}: wavelengths_nm: expected a non-empty list of wavelengths in nm")
+        lam = np.asarray(lam, float)
+        if not np.all(np.isfinite(lam)) or np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
+            raise BrdftabError(f"{where}: wavelengths_nm: expected positive wavelengths in increasing order")
+    return grid, lam
+
+
+# --------------------------------------------------------------------------------------------
+# folding a source into the symmetries of the target grid
+
+def _fold_reasons(source, grid) -> list:
+    """Why ``source`` must be averaged to fit ``grid`` (empty: it fits as it is)."""
+    reasons = []
+    src_fold = getattr(getattr(source, "grid", None), "phi_d_fold", "none")
+    fold = getattr(grid, "phi_d_fold", "none")
+    if not source.isotropic and (getattr(grid, "anisotropic", True) is False or "bilateral" in fold):
+        reasons.append("azimuth")
+    if "reciprocity" in fold and not (source.reciprocal or "reciprocity" in src_fold):
+        reasons.append("reciprocity")
+    return reasons
+
+
+_FOLD_TEXT = {
+    "azimuth": "the source is anisotropic and the target grid isotropic",
+    "reciprocity": "the source is not reciprocal and the target grid is folded by reciprocity (phi_d ~ phi_d + pi)",
+}
+
+
+class _Folded(BRDF):
+    """The mean of a BRDF over rotations about the normal and/or over swapping wi and wo."""
+
+    def __init__(self, brdf, rotations: int = 0, swap: bool = False, reciprocal: bool | None = None):
+        self.brdf = brdf
+        self.rotations = rotations
+        self.swap = swap
+        self.name = brdf.name
+        self.layout = brdf.layout
+        self.isotropic = True if rotations else brdf.isotropic
+        self.reciprocal = True if swap else (brdf.reciprocal if reciprocal is None else reciprocal)
+
+    @property
+    def parameters(self):
+        return self.brdf.parameters
+
+    def _eval(self, wi, wo, lam, n):
+        if not self.rotations and not self.swap:
+            return self.brdf.eval(wi, wo, lam)
+        angles = 2.0 * np.pi * np.arange(self.rotations) / self.rotations if self.rotations else [0.0]
+        acc = np.zeros((wi.shape[0], n))
+        count = np.zeros((wi.shape[0], n))
+        for a in angles:
+            c, s = math.cos(a), math.sin(a)
+            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            ri, ro = wi @ rot.T, wo @ rot.T
+            for x, y in ((ri, ro), (ro, ri)) if self.swap else ((ri, ro),):
+                f = self.brdf.eval(x, y, lam)
+                ok = np.isfinite(f)
+                acc += np.where(ok, f, 0.0)
+                count += ok
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(count > 0, acc / np.maximum(count, 1), np.nan)
+
+
+def _rotations(grid) -> int:
+    """Rotations about the normal to average over: one per node of a uniform periodic φh axis
+    (the mean of the table's interpolant over φh is then exact), else :data:`PHI_H_SAMPLES`."""
+    for ax in getattr(grid, "axes", ()):
+        if ax.name == "phi_h" and ax.period is not None and len(ax) > 1:
+            steps = np.diff(np.append(ax.values, ax.values[0] + ax.period))
+            if np.allclose(steps, steps[0], rtol=1e-9, atol=1e-12):
+                return len(ax)
+    return PHI_H_SAMPLES
+
+
+# --------------------------------------------------------------------------------------------
+# the resampling figures
+
+def check_points(grid, n: int = CHECK_POINTS, seed: int = 0):
+    """``n`` random direction pairs inside ``grid``'s domain: each between a random node and
+    its neighbour one step up every axis (directions blended, then normalized); pairs below
+    the horizon are left out. For a sample layout that is not a brdftab grid (a format's
+    own), pairs uniform over the hemisphere."""
+    from .grids import Grid
+
+    rng = np.random.default_rng(seed)
+    if not isinstance(grid, Grid):
+        return _uniform_pairs(rng, n)
+    shape = grid.shape
+    lo = np.stack([rng.integers(0, s, n) for s in shape])
+    hi = lo + 1
+    for k, ax in enumerate(grid.axes):
+        hi[k] = hi[k] % shape[k] if ax.period is not None else np.minimum(hi[k], shape[k] - 1)
+    t = rng.random(n)[:, None]
+    wi0, wo0 = _node_directions(grid, lo)
+    wi1, wo1 = _node_directions(grid, hi)
+    wi = (1 - t) * wi0 + t * wi1
+    wo = (1 - t) * wo0 + t * wo1
+    with np.errstate(invalid="ignore", divide="ignore"):
+        wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    keep = np.isfinite(wi).all(1) & np.isfinite(wo).all(1) & (wi[:, 2] > 1e-6) & (wo[:, 2] > 1e-6)
+    return wi[keep], wo[keep]
+
+
+def _uniform_pairs(rng, n):
+    def hemisphere():
+        z = rng.random(n) * (1 - 2e-6) + 1e-6
+        phi = rng.random(n) * 2 * np.pi
+        r = np.sqrt(1 - z * z)
+        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+    return hemisphere(), hemisphere()
+
+
+def _node_directions(grid, idx):
+    flat = np.ravel_multi_index(tuple(idx), grid.shape)
+    uniq, inverse = np.unique(flat, return_inverse=True)
+    wi = np.empty((uniq.size, 3))
+    wo = np.empty((uniq.size, 3))
+    for j, f in enumerate(uniq):
+        a, b = grid.directions(int(f), int(f) + 1)
+        wi[j], wo[j] = a[0], b[0]
+    return wi[inverse], wo[inverse]
+
+
+def difference(source, written, n: int = CHECK_POINTS, seed: int = 0):
+    """:class:`Difference` of ``written`` (a table) from ``source`` at check points of the
+    written table's grid; None (with the reason) when they cannot be compared."""
+    if written.spectral != source.spectral:
+        return None, "the source and the written table differ in channels; no difference computed"
+    lam = written.wavelengths if written.spectral else None
+    wi, wo = check_points(getattr(written, "grid", None), n, seed)
+    if wi.shape[0] == 0:
+        return None, "no check points above the horizon"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        f_w = np.asarray(written.eval(wi, wo, lam), float)
+        f_s = np.asarray(source.eval(wi, wo, lam), float)
+    if f_s.shape[-1] != f_w.shape[-1]:
+        if f_s.shape[-1] == 1:
+            f_s = np.repeat(f_s, f_w.shape[-1], axis=-1)
+        elif f_w.shape[-1] == 1:
+            f_w = np.repeat(f_w, f_s.shape[-1], axis=-1)
+        else:
+            return None, "the source and the written table differ in channels; no difference computed"
+    ok = np.isfinite(f_s).all(-1) & np.isfinite(f_w).all(-1)
+    if not ok.any():
+        return None, "no check points inside both the source's and the written table's domains"
+    f_s, f_w = f_s[ok], f_w[ok]
+    floor = max(1e-6 * float(np.abs(f_s).max()), np.finfo(float).tiny)
+    rel = np.abs(f_w - f_s) / np.maximum(np.abs(f_s), floor)
+    return Difference(float(rel.max()), float(np.sqrt(np.mean(rel ** 2))), int(ok.sum()), int(n)), ""
+
+
+# --------------------------------------------------------------------------------------------
+
+def _refusal(report, what) -> str:
+    parts = []
+    for o in report.failures:
+        fig = "" if o.figure is None else f" (figure {o.figure:.4g}" + (
+            "" if o.threshold is None else f", threshold {o.threshold:.4g}") + ")"
+        parts.append(f"{o.name}: {o.detail}{fig}")
+    return f"refusing to convert {what}: {'; '.join(parts)} (pass --allow-invalid to write anyway)"
+
+
+def convert(source, target, *, grid=None, wavelengths=None, format: str | None = None, options: dict | None = None,
+            overwrite: bool = False, fold: bool = False, allow_invalid: bool = False, checks=None,
+            progress: bool | None = None, inputs=(), n_check: int = CHECK_POINTS) -> Conversion:
+    """Convert the table file ``source`` into ``target`` (see the module docstring).
+
+    ``grid``: a :class:`~brdftab.grids.Grid` to write on (None: the source's own);
+    ``wavelengths`` [nm] to resample a spectral source at; ``format``: an output format name
+    (None: from ``target``'s extension); ``options``: format options; ``fold``: average the
+    source into the target grid's symmetries when it has fewer; ``checks``: a configuration
+    layer for the validation checks; ``inputs``: further files the conversion reads (never
+    overwritten).
+    """
+    started = time.monotonic()
+    source, target = Path(source), Path(target)
+    options = dict(options or {})
+    fmt = formats.format_for(target, format)
+    fmt.ensure_available()
+    try:
+        fmt.validate_options(options)
+    except ParameterError as exc:
+        raise BrdftabError(f"--option {exc.key}: {exc.detail}" if exc.key else str(exc)) from None
+    inputs = [(source, "the input table"), *inputs]
+    check_target(target, overwrite, inputs)
+    with terminate_as_interrupt(), claim([target], overwrite, inputs):
+        table = formats.read(source)
+        report = _run_checks(table, checks)
+        if not report.passed and not allow_invalid:
+            raise InvalidSource(_refusal(report, source))
+        src_grid = getattr(table, "grid", None)
+        if not isinstance(src_grid, Grid):  # samples in a format's own layout (not a brdftab grid)
+            src_grid = None
+        requested = grid if grid is not None else src_grid
+        try:
+            out_grid = formats.target_grid(fmt, requested, options)
+        except ParameterError as exc:
+            key = f"{exc.key}: " if exc.key else ""
+            raise BrdftabError(f"{target}: {key}{exc.detail}") from None
+        if out_grid is None and fmt.prepare is None:
+            layout = getattr(getattr(table, "grid", None), "describe", lambda: "its own layout")()
+            raise BrdftabError(f"{source} holds samples in {layout}, not on a grid {fmt.name} can store; choose "
+                               "one with --grid (e.g. --grid merl)")
+        same_grid = out_grid is not None and src_grid is not None and out_grid.equals(src_grid)
+        same_lam = wavelengths is None or (table.spectral and np.array_equal(np.asarray(wavelengths, float),
+                                                                              np.asarray(table.wavelengths, float)))
+        if out_grid is None:  # the format samples the source its own way
+            resampled = not (formats.detect(source).name == fmt.name and not options and grid is None)
+        else:
+            resampled = not (same_grid and same_lam)
+        brdf, folded = table, []
+        if out_grid is not None and resampled:
+            reasons = _fold_reasons(table, out_grid)
+            if reasons and not fold:
+                why = "; ".join(_FOLD_TEXT[r] for r in reasons)
+                raise BrdftabError(f"{source} must be averaged to fit {out_grid.describe()}: {why}; pass --fold to "
+                                   "write its average, or choose a grid that keeps it (--grid)")
+            folded = [_FOLD_TEXT[r] for r in reasons]
+            # a table already folded by reciprocity holds reciprocal data whatever it declares
+            src_fold = getattr(src_grid, "phi_d_fold", "none")
+            if reasons or ("reciprocity" in src_fold and not table.reciprocal):
+                brdf = _Folded(table, _rotations(src_grid) if "azimuth" in reasons else 0, "reciprocity" in reasons,
+                               reciprocal=True if "reciprocity" in src_fold else None)
+        payload = brdf
+        if fmt.prepare is None and out_grid is not None and resampled:
+            payload = _tabulate(brdf, out_grid, wavelengths, table, source, progress)
+            bad = int(np.isnan(payload.values).any(axis=-1).sum())
+            if bad and not allow_invalid:
+                raise ValidationError(f"refusing to convert {source}: {bad} of {out_grid.size} nodes of "
+                                      f"{out_grid.describe()} lie outside the source's domain or read missing "
+                                      "samples (NaN); choose a grid inside it (--grid) or pass --allow-invalid")
+        elif wavelengths is not None and not same_lam:
+            raise BrdftabError(f"--grid wavelengths_nm: format {fmt.name} samples the source itself; "
+                               "it cannot resample wavelengths")
+        with write_progress(target.name, progress, _delay(started)):
+            written = formats.write(payload, target, grid=out_grid, format=fmt.name, overwrite=overwrite,
+                                    **options)
+        src_text = getattr(getattr(table, "grid", None), "describe", lambda: "")()
+        result = Conversion(source, target, fmt.name, src_text,
+                            out_grid.describe() if out_grid is not None else "", resampled, folded,
+                            report=report, written=written)
+        if resampled or folded:
+            back = _read_back(fmt, target, written)
+            if back is None:
+                result.note = f"format {fmt.name} cannot be read back; no difference computed"
+            else:
+                # against what was resampled: the input, or its average when it was folded
+                result.difference, result.note = difference(brdf, back, n_check)
+                if not result.target_grid and getattr(back, "grid", None) is not None:
+                    result.target_grid = back.grid.describe()
+    return result
+
+
+def _delay(started: float) -> float:
+    from . import table
+
+    return max(0.0, table.PROGRESS_DELAY - (time.monotonic() - started))
+
+
+def _run_checks(table, checks):
+    from .checks import run_checks
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return run_checks(table, checks)
+
+
+def _tabulate(brdf, grid, wavelengths, table, source: Path, progress):
+    from .table import tabulate
+
+    provenance = {k: v for k, v in getattr(table, "ds", None).attrs.items()
+                  if k in ("spec_sha256", "spec_file", "comment")} if hasattr(table, "ds") else {}
+    provenance["converted_from"] = source.name
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # samples outside the source's domain: NaN, reported by the checks
+            return tabulate(brdf, grid, wavelengths, progress=progress, provenance=provenance)
+    except ParameterError as exc:
+        raise BrdftabError(f"cannot resample {source} onto {grid.describe()}: {exc}") from None
+
+
+def _read_back(fmt, target: Path, written):
+    from .table import Table
+
+    if fmt.read is not None:
+        try:
+            return formats.read(target)
+        except BrdftabError:
+            pass
+    return written if isinstance(written, Table) else None

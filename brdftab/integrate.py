@@ -1,0 +1,316 @@
+"""Albedo integrals of any BRDF: directional-hemispherical and bihemispherical reflectance.
+
+* :func:`directional_albedo` — a(wi) = ∫ f(wi, wo) cosθo dωo (+ the coefficient of an ideal
+  specular component, when the BRDF carries one), per channel;
+* :func:`albedo_curve` — a(θi, φi) on a sweep of incidence angles, with the covered fraction
+  of each integral and the white-sky albedo;
+* :func:`white_sky_albedo` — the bihemispherical (white-sky) albedo
+  (1/π) ∫ a(wi) cosθi dωi from a curve a(θi).
+
+Quadrature
+----------
+The outgoing hemisphere is integrated in half-vector space, dωo = 4 (wo·h) dωh (B. Walter et
+al., EGSR 2007, Eq. 14), with h in polar coordinates (θh, ψ = φh − φi) about the normal. For
+each ψ the mirrored wo stays above the horizon while θh < θh_max(ψ) =
+(π/2 + atan2(sinθi cosψ, cosθi)) / 2; that bound is a panel end, so the horizon cut is exact
+and diffuse integrands, smooth in h, converge fast (a Lambertian to ~1e-11). In θh the
+Gauss–Legendre panels are graded geometrically, from a lobe's width / 8 by a factor of 2 up
+to θh_max: a microfacet-type lobe is centred on h = n whatever θi, so it is covered by panels
+no larger than itself at every distance from its centre — the hp-refinement of a point
+singularity (C. Schwab, *p- and hp-Finite Element Methods*, Oxford (1998), §4.5). In ψ there
+are four equal panels, with edges at ψ = ±π/2 where θh_max turns over at grazing incidence.
+Against converged references for GGX and Beckmann lobes of α = 0.002 … 0.5 the error is
+≤ 1e-5 for θi ≤ 60°, ≤ 1.1e-4 up to 85° and ≤ 9e-4 at 89°, with 700–1600 nodes per
+incidence direction (6 nodes per panel).
+
+The lobe width is measured (:func:`lobe_width`): the half vector is tilted away from the
+normal towards four azimuths at 33 geometric offsets (1e-4 … 1 rad); the width is the
+smallest offset at which the integrand falls below a tenth of its value at the mirror
+direction (1 rad when it never does: a broad or diffuse BRDF). A width the BRDF declares
+(``lobe_width``, e.g. a microfacet α) is used when it is smaller. Narrow features away from the
+mirror direction are not searched for; pass ``lobe_width`` for them.
+
+Ideal specular components are not sampled: a BRDF may expose
+``specular_delta(wi, wavelengths) -> [..., C]``, the fraction of the incident flux sent into
+the mirror direction, which is added to a(wi).
+
+Missing samples
+---------------
+A table evaluates to NaN where its samples are missing. Those quadrature nodes are left out
+of the integral (they contribute nothing), and the *coverage* — the fraction ∫_valid cosθo dωo
+/ π of the projected solid angle that had data — is returned alongside, so an integral over a
+partly measured table is a lower bound whose completeness is known.
+
+References: P. J. Davis, P. Rabinowitz, *Methods of Numerical Integration*, 2nd ed. (1984),
+§2.7 (Gauss–Legendre), §5.6 (product rules); F. E. Nicodemus et al., NBS Monograph 160
+(1977), §6 (directional-hemispherical and bihemispherical reflectance).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from .geometry import sph_to_vec
+from .quadrature import gauss_legendre
+
+__all__ = ["AlbedoCurve", "albedo_curve", "directional_albedo", "lobe_width", "lobe_widths", "outgoing_rule",
+           "white_sky_albedo", "DEFAULT_NODES", "DEFAULT_RATIO"]
+
+HALF_PI = 0.5 * np.pi
+#: Gauss–Legendre nodes per cell side.
+DEFAULT_NODES = 6
+#: Ratio of successive box half-widths of the geometric mesh.
+DEFAULT_RATIO = 2.0
+#: Equal panels in the half-vector azimuth.
+PHI_PANELS = 4
+#: Offsets [rad] at which the lobe width is probed.
+PROBE_OFFSETS = np.geomspace(1e-4, 1.0, 33)
+MIN_WIDTH = 1e-4
+MAX_WIDTH = 1.0
+#: Directions with z at or below this are not probed or integrated (the BRDF is 0 there).
+_Z_MIN = 1e-12
+
+
+# --------------------------------------------------------------------------------------------
+# Lobe width
+
+
+def _theta_h_max(theta_i, psi):
+    """Largest θh at relative half-vector azimuth ψ = φh − φi whose mirrored wo is above the horizon.
+
+    wo_z = 2 (wi·h) h_z − cosθi = sinθi cosψ sin2θh + cosθi cos2θh > 0 ⇔
+    θh < (π/2 + atan2(sinθi cosψ, cosθi)) / 2.
+    """
+    return 0.5 * (HALF_PI + np.arctan2(np.sin(theta_i) * np.cos(psi), np.cos(theta_i)))
+
+
+def _half_vectors(theta_i, psi, theta_h):
+    """Half vectors at (θh, φh = φi + ψ) in the frame where φi = 0, and the mirrored wo."""
+    h = sph_to_vec(theta_h, psi)
+    wi = sph_to_vec(theta_i, 0.0)
+    c = h @ wi
+    return h, 2.0 * c[..., None] * h - wi, c
+
+
+def _rotate_z(v, angle):
+    ca, sa = np.cos(angle), np.sin(angle)
+    out = v.copy()
+    out[..., 0] = ca * v[..., 0] - sa * v[..., 1]
+    out[..., 1] = sa * v[..., 0] + ca * v[..., 1]
+    return out
+
+
+def lobe_width(brdf, theta_i: float, phi_i: float = 0.0, wavelengths=None) -> float:
+    """Angular width [rad] of the BRDF's lobe about the mirror direction, in half-vector space.
+
+    The half vector h is tilted from the normal by offsets δ (1e-4 … 1 rad) towards four
+    azimuths (φi, φi ± π/2, φi + π); the width is the smallest δ at which the integrand
+    f(wi, wo(h)) cosθo (wi·h) falls below a tenth of its value at h = n (wo the mirror
+    direction), clipped to [1e-4, 1] (1 when it never does: a broad or diffuse BRDF). When the
+    BRDF declares a ``lobe_width`` (a number, e.g. a microfacet α, or a method of wi) the
+    smaller of the two is used.
+    """
+    return float(lobe_widths(brdf, np.atleast_1d(theta_i), np.atleast_1d(phi_i), wavelengths)[0])
+
+
+def lobe_widths(brdf, theta_i, phi_i, wavelengths=None) -> np.ndarray:
+    """:func:`lobe_width` for arrays of incidence angles (one evaluation of the BRDF)."""
+    theta_i = np.asarray(theta_i, float).ravel()
+    phi_i = np.asarray(phi_i, float).ravel()
+    m = theta_i.size
+    n = PROBE_OFFSETS.size
+    psi = np.concatenate([[0.0], np.repeat(np.arange(4) * HALF_PI, n)])
+    th = np.concatenate([[0.0], np.tile(PROBE_OFFSETS, 4)])
+    k = psi.size
+    wo = np.empty((m, k, 3))
+    c = np.empty((m, k))
+    for j in range(m):
+        _, w, cc = _half_vectors(theta_i[j], psi, th)
+        wo[j] = _rotate_z(w, phi_i[j])
+        c[j] = cc
+    wi = sph_to_vec(theta_i, phi_i)
+    f = brdf.eval(np.broadcast_to(wi[:, None, :], wo.shape).reshape(-1, 3), wo.reshape(-1, 3), wavelengths)
+    f = f.reshape(m, k, -1)
+    g = np.nansum(np.where(np.isfinite(f), f, np.nan), axis=-1) * wo[..., 2] * c
+    above = wo[..., 2] > _Z_MIN
+    out = np.full(m, MAX_WIDTH)
+    for j in range(m):
+        g0 = g[j, 0]
+        if not (np.isfinite(g0) and g0 > 0):
+            continue
+        for d in range(4):
+            gk = g[j, 1 + d * n: 1 + (d + 1) * n]
+            ok = above[j, 1 + d * n: 1 + (d + 1) * n]
+            # stop at the horizon: beyond it the BRDF is 0 by definition, not by its shape
+            stop = int(np.argmin(ok)) if not ok.all() else n
+            low = np.flatnonzero(gk[:stop] < 0.1 * g0)
+            if low.size:
+                out[j] = min(out[j], PROBE_OFFSETS[low[0]])
+    hint = getattr(brdf, "lobe_width", None)
+    if callable(hint):
+        hint = np.array([hint(w) for w in wi], float)
+    if hint is not None:
+        out = np.minimum(out, hint)
+    return np.clip(out, MIN_WIDTH, MAX_WIDTH)
+
+
+# --------------------------------------------------------------------------------------------
+# The quadrature rule
+
+
+def _gl_panels(edges, nodes):
+    """Gauss–Legendre nodes and weights on consecutive panels; ``edges[..., P + 1]``."""
+    x, wx = gauss_legendre(nodes, 0.0, 1.0)
+    lo, hi = edges[..., :-1, None], edges[..., 1:, None]
+    pts = lo + (hi - lo) * x
+    wts = (hi - lo) * wx
+    return pts.reshape(edges.shape[:-1] + (-1,)), wts.reshape(edges.shape[:-1] + (-1,))
+
+
+def _phi_edges(panels):
+    """Panel edges of ψ = φh − φi over [−π, π]: ``panels`` equal panels (with 4, edges at
+    ψ = ±π/2, where the horizon cut θh_max(ψ) turns over at grazing incidence)."""
+    return np.linspace(-np.pi, np.pi, panels + 1)
+
+
+def outgoing_rule(theta_i: float, phi_i: float = 0.0, width: float = MAX_WIDTH, *, nodes: int = DEFAULT_NODES,
+                  ratio: float = DEFAULT_RATIO):
+    """Quadrature over the outgoing hemisphere, in half-vector space about the normal.
+
+    ``width`` [rad] is the lobe's width in half-vector space (see :func:`lobe_width`).
+    Returns ``wo[N, 3]`` and weights ``w[N]`` [sr] such that Σ w g(wo) ≈ ∫ g dωo over the
+    upper hemisphere. The half vector h = (θh, φh) is integrated with Gauss–Legendre panels:
+    in θh graded from width/8 by ``ratio`` up to the horizon cut θh_max(φh) (where the mirrored
+    wo reaches the horizon, a panel edge), in φh :data:`PHI_PANELS` equal panels.
+    dωo = 4 (wo·h) dωh.
+    """
+    theta_i = float(theta_i)
+    w0 = float(np.clip(width, MIN_WIDTH, MAX_WIDTH)) / 8.0
+    ladder = w0 * ratio ** np.arange(int(np.ceil(np.log(HALF_PI / w0) / np.log(ratio))) + 1)
+    ladder = ladder[ladder < HALF_PI]
+    psi, wpsi = _gl_panels(_phi_edges(PHI_PANELS), nodes)                # [Np]
+    tmax = _theta_h_max(theta_i, psi)                                     # [Np]
+    edges = np.concatenate([np.zeros((psi.size, 1)), np.minimum(ladder[None, :], tmax[:, None]), tmax[:, None]],
+                           axis=1)                                        # [Np, P + 1]
+    th, wth = _gl_panels(edges, nodes)                                    # [Np, P * nodes]
+    keep = wth > 0                                                        # empty panels past θh_max
+    psi_b = np.broadcast_to(psi[:, None], th.shape)[keep]
+    h, wo, c = _half_vectors(theta_i, psi_b, th[keep])
+    w = (wth * np.sin(th) * wpsi[:, None])[keep] * 4.0 * c
+    return _rotate_z(wo, float(phi_i)), w
+
+
+# --------------------------------------------------------------------------------------------
+# Directional and bihemispherical albedo
+
+
+#: Quadrature nodes evaluated per call of the BRDF.
+BATCH = 1 << 18
+
+
+def _integrate(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
+    """(a[M, C], coverage[M, C], widths[M]) for incidence angles ``theta_i[M]``, ``phi_i[M]``."""
+    m = theta_i.size
+    widths = (lobe_widths(brdf, theta_i, phi_i, wavelengths) if width is None
+              else np.broadcast_to(np.asarray(width, float), (m,)).copy())
+    wi = sph_to_vec(theta_i, phi_i)
+    a = c = None
+    start = 0
+    while start < m:
+        rules, count = [], 0
+        stop = start
+        while stop < m and (count < BATCH or stop == start):
+            wo, w = outgoing_rule(theta_i[stop], phi_i[stop], widths[stop], nodes=nodes, ratio=ratio)
+            keep = wo[:, 2] > _Z_MIN
+            rules.append((wo[keep], w[keep] * wo[keep, 2]))
+            count += int(keep.sum())
+            stop += 1
+        seg = np.repeat(np.arange(start, stop), [r[0].shape[0] for r in rules])
+        wo = np.concatenate([r[0] for r in rules])
+        proj = np.concatenate([r[1] for r in rules])
+        f = brdf.eval(wi[seg], wo, wavelengths)
+        if a is None:
+            a = np.zeros((m, f.shape[-1]))
+            c = np.zeros((m, f.shape[-1]))
+        valid = ~np.isnan(f)
+        for ch in range(f.shape[-1]):
+            a[:, ch] += np.bincount(seg, np.where(valid[:, ch], f[:, ch], 0.0) * proj, minlength=m)
+            c[:, ch] += np.bincount(seg, valid[:, ch] * proj, minlength=m)
+        start = stop
+    fn = getattr(brdf, "specular_delta", None)
+    if callable(fn):
+        a = a + np.asarray(fn(wi, wavelengths), float).reshape(a.shape)
+    return a, np.minimum(c / np.pi, 1.0), widths
+
+
+def directional_albedo(brdf, theta_i, phi_i=0.0, wavelengths=None, *, lobe_width=None, nodes: int = DEFAULT_NODES,
+                       ratio: float = DEFAULT_RATIO, coverage: bool = False):
+    """Directional-hemispherical reflectance a(θi, φi) = ∫ f cosθo dωo (+ specular delta).
+
+    ``theta_i``, ``phi_i`` [rad] broadcast against each other; returns ``[..., n_channels]``
+    (and the coverage of the same shape when ``coverage`` is true). ``lobe_width`` [rad]
+    overrides the measured width of the lobe about the mirror direction.
+    """
+    ti, pi_ = np.broadcast_arrays(np.asarray(theta_i, float), np.asarray(phi_i, float))
+    a, c, _ = _integrate(brdf, ti.ravel(), pi_.ravel(), wavelengths, lobe_width, nodes, ratio)
+    shape = ti.shape + (-1,)
+    if coverage:
+        return a.reshape(shape), c.reshape(shape)
+    return a.reshape(shape)
+
+
+def white_sky_albedo(theta_i, values, n: int = 64) -> np.ndarray:
+    """Bihemispherical albedo 2 ∫₀^{π/2} a(θi) cosθi sinθi dθi from a curve ``values[n_θ, C]``.
+
+    The curve is interpolated by a natural cubic spline in θi (extrapolated beyond its ends,
+    e.g. to 90°) and integrated with ``n`` Gauss–Legendre nodes in μ = cosθi.
+    """
+    theta_i = np.asarray(theta_i, float)
+    values = np.asarray(values, float)
+    mu, wmu = gauss_legendre(n, 0.0, 1.0)
+    if theta_i.size == 1:
+        return values.reshape(1, -1)[0].copy()
+    spline = CubicSpline(theta_i, values, axis=0, bc_type="natural", extrapolate=True)
+    a = spline(np.arccos(mu))
+    return 2.0 * np.einsum("nc,n->c", a.reshape(mu.size, -1), mu * wmu)
+
+
+@dataclass
+class AlbedoCurve:
+    """a(θi, φi) on a sweep: ``values`` and ``coverage`` ``[n_θ, n_φ, C]``; ``white_sky[C]``."""
+
+    theta_i: np.ndarray
+    phi_i: np.ndarray
+    values: np.ndarray
+    coverage: np.ndarray
+    white_sky: np.ndarray
+    widths: np.ndarray
+
+    @property
+    def max(self) -> float:
+        return float(np.nanmax(self.values)) if self.values.size else float("nan")
+
+    def argmax(self):
+        """(θi, φi, channel index) of the largest albedo (the first of equal ones, to rounding)."""
+        top = np.nanmax(self.values)
+        first = int(np.argmax(self.values >= top - 1e-12 * abs(top)))
+        i, j, c = np.unravel_index(first, self.values.shape)
+        return float(self.theta_i[i]), float(self.phi_i[j]), int(c)
+
+
+def albedo_curve(brdf, theta_i, phi_i=(0.0,), wavelengths=None, *, lobe_width=None, nodes: int = DEFAULT_NODES,
+                 ratio: float = DEFAULT_RATIO) -> AlbedoCurve:
+    """a(θi, φi) for every θi in ``theta_i`` and φi in ``phi_i`` [rad], with coverage and the
+    white-sky albedo (averaged over the φi, which should then be uniform over the circle)."""
+    theta_i = np.atleast_1d(np.asarray(theta_i, float))
+    phi_i = np.atleast_1d(np.asarray(phi_i, float))
+    tt, pp = np.meshgrid(theta_i, phi_i, indexing="ij")
+    vals, covs, widths = _integrate(brdf, tt.ravel(), pp.ravel(), wavelengths, lobe_width, nodes, ratio)
+    shape = (theta_i.size, phi_i.size, -1)
+    vals = vals.reshape(shape)
+    covs = covs.reshape(shape)
+    ws = white_sky_albedo(theta_i, vals.mean(axis=1))
+    return AlbedoCurve(theta_i, phi_i, vals, covs, ws, widths.reshape(theta_i.size, phi_i.size))

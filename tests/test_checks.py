@@ -1,0 +1,401 @@
+"""The registered checks (brdftab.checks) against closed forms, on models and on tables.
+
+Closed forms used: a Lambertian reflector of albedo ρ has a(θi) = ρ everywhere; the
+non-reciprocal toy f = (a + b cosθi)/π has albedo-weighted asymmetry
+∫∫|f − f'| μi μo dωi dωo / ∫∫ ½(f + f') μi μo dωi dωo = (b/15) / (a/4 + b/6) (the double
+integrals reduce to ∫∫|x − y| x y dx dy = 1/15 and ∫∫ x y (x + y)/2 dx dy = 1/6 over the unit
+square) and largest relative asymmetry b / (a + b/2) (at μi = 1, μo → 0); a table scaled by s
+against its model has relative error s − 1 at every point.
+"""
+
+import json
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+
+import brdftab
+from brdftab import models
+from brdftab.brdf import BRDF
+from brdftab.checks import CHECKS, ChecksFailed, configure, guard, load_schema, run_checks, run_document
+from brdftab.errors import ParameterError
+from brdftab.grids import RusinkiewiczGrid
+from brdftab.table import Table, make_table
+
+R = np.radians
+GGX = dict(distribution="ggx", alpha=0.3, shadowing="smith-height-correlated")
+
+
+def outcome(brdf, name, config=None, **kw):
+    return run_checks(brdf, config, only=(name,), **kw).get(name)
+
+
+class Toy(BRDF):
+    """f = (a + b cosθi) / π: depends on the incident direction only, so it is not reciprocal."""
+
+    name = "toy"
+    reciprocal = False
+    a, b = 0.5, 0.5
+
+    def _eval(self, wi, wo, lam, n):
+        return np.repeat(((self.a + self.b * wi[:, 2]) / np.pi)[:, None], n, axis=1)
+
+
+class ClaimsReciprocity(Toy):
+    reciprocal = True
+
+
+class Spun(BRDF):
+    """Declared isotropic, but depends on the azimuth of wi."""
+
+    name = "spun"
+
+    def _eval(self, wi, wo, lam, n):
+        phi = np.arctan2(wi[:, 1], wi[:, 0])
+        return np.repeat((0.5 * (1 + 0.5 * np.cos(phi)) / np.pi)[:, None], n, axis=1)
+
+
+class Chiral(BRDF):
+    """Isotropic (depends on φo − φi only) but not mirror-symmetric: sin(φo − φi)."""
+
+    name = "chiral"
+    reciprocal = False
+
+    def _eval(self, wi, wo, lam, n):
+        d = np.arctan2(wo[:, 1], wo[:, 0]) - np.arctan2(wi[:, 1], wi[:, 0])
+        s = np.sqrt(1 - wi[:, 2] ** 2) * np.sqrt(1 - wo[:, 2] ** 2)
+        return np.repeat((0.5 * (1 + 0.5 * s * np.sin(d)) / np.pi)[:, None], n, axis=1)
+
+
+TOY_WEIGHTED = (Toy.b / 15) / (Toy.a / 4 + Toy.b / 6)     # 0.16
+TOY_MAX = Toy.b / (Toy.a + Toy.b / 2)                      # 2/3
+
+
+# -- energy and albedo -------------------------------------------------------------------------
+
+def test_lambert_albedo_curve_and_energy():
+    lam = models.create("lambert", albedo=0.8)
+    r = run_checks(lam, {"albedo": {"expected": 0.8, "tolerance": 1e-4}}, only=("energy", "albedo"))
+    e, a = r.get("energy"), r.get("albedo")
+    assert e.status == "pass" and abs(e.figure - 0.8) < 1e-4 and e.threshold == pytest.approx(1.01)
+    assert a.status == "pass" and a.figure < 1e-4
+    vals = np.array(a.data["values"])
+    assert vals.shape == (90, 1) and np.all(np.abs(vals - 0.8) < 1e-4)
+    assert a.data["theta_i_deg"][0] == 0 and a.data["theta_i_deg"][-1] == pytest.approx(89.0)
+    assert abs(a.data["white_sky"][0] - 0.8) < 1e-4
+
+
+def test_lambert_with_albedo_1_2_fails_energy_as_model_and_as_table():
+    bright = models.create("scale", factor=1.5, term=models.create("lambert", albedo=0.8))
+    e = outcome(bright, "energy")
+    assert e.status == "fail" and abs(e.figure - 1.2) < 1e-4
+    assert "1.2" in e.detail and "accepted ≤ 1.01" in e.detail
+    assert outcome(bright, "energy", {"energy": {"level": "warn"}}).status == "warn"
+    assert run_checks(bright, {"energy": {"level": "warn"}}).passed
+    table = brdftab.tabulate(bright, RusinkiewiczGrid(12, 12, 24), progress=False)
+    e = outcome(table, "energy")
+    assert e.status == "fail" and abs(e.figure - 1.2) < 1e-4
+
+
+def test_a_coarse_table_of_a_valid_model_warns_instead_of_failing():
+    # a 0.1-wide lobe interpolated across 10° gonio steps integrates to more than 1; its
+    # source does not: the excess is tabulation error, reported but not blocking
+    ggx = models.create("microfacet", alpha=0.1)
+    grid = brdftab.grids.SphericalGrid(R([0, 30, 60]), [0.0], R(np.arange(0, 81, 10.0)), R(np.arange(0, 360, 10.0)))
+    table = brdftab.tabulate(ggx, grid, progress=False)
+    e = outcome(table, "energy")
+    assert e.status == "warn" and e.figure > 1.01 and e.data["source_max"] <= 1.0
+    assert "tabulation error" in e.detail
+    unknown = make_table(table.values, grid, ggx.layout)  # no source model: the table is judged
+    assert outcome(unknown, "energy").status == "fail"
+
+
+def test_expected_albedo_values_are_compared():
+    lam = models.create("lambert", albedo=0.8)
+    a = outcome(lam, "albedo", {"albedo": {"expected": 0.75, "tolerance": 0.01}})
+    assert a.status == "fail" and a.figure == pytest.approx(0.05, abs=1e-4)
+    a = outcome(lam, "albedo", {"albedo": {"expected": [0.8, 0.8], "expected_theta_i_deg": [0, 60],
+                                           "tolerance": 1e-4}})
+    assert a.status == "pass" and a.data["expected_theta_i_deg"] == pytest.approx([0, 60])
+    a = outcome(lam, "albedo", {"albedo": {"white_sky": 0.9, "tolerance": 0.05}})
+    assert a.status == "fail" and a.figure == pytest.approx(0.1, abs=1e-4)
+
+
+# -- sample audit ------------------------------------------------------------------------------
+
+def test_sample_audit_counts_nan_negative_and_missing():
+    grid = RusinkiewiczGrid(8, 8, 16)
+    lam = models.create("lambert", albedo=0.5)
+    values = brdftab.tabulate(lam, grid, progress=False).values.copy()
+    values[1, 2, 3, 0] = np.nan
+    values[2, 3, 4, 0] = -0.01      # negative data
+    values[3, 4, 5, 0] = -1.0       # a MERL-style "no data" marker
+    t = make_table(values, grid, lam.layout, brdf=lam)
+    ds = t.ds
+    ds["brdf"].attrs["valid_min"] = -0.5
+    table = Table(ds)
+    r = run_checks(table)
+    fin, neg, miss = r.get("finite"), r.get("non-negative"), r.get("missing")
+    assert fin.status == "fail" and fin.figure == 1 and fin.data["nan"] == 1 and fin.data["inf"] == 0
+    assert neg.status == "fail" and neg.figure == 1 and neg.data["lowest"] == pytest.approx(-0.01)
+    assert miss.status == "warn" and miss.data["missing"] == 1 and miss.figure == pytest.approx(1 / values.size)
+    deg = np.degrees
+    th, td, pd = (a.values for a in grid.axes)
+    for o, (i, j, k) in ((fin, (1, 2, 3)), (neg, (2, 3, 4)), (miss, (3, 4, 5))):
+        w = o.data["where"][0]
+        assert (w["theta_h_deg"], w["theta_d_deg"], w["phi_d_deg"]) == pytest.approx((deg(th[i]), deg(td[j]),
+                                                                                     deg(pd[k])))
+    assert not r.passed
+    assert {o.name for o in r.failures} == {"finite", "non-negative"}
+    # the integrals leave the bad samples out and still see a Lambertian of albedo 0.5
+    e = r.get("energy")
+    assert e.status == "pass" and abs(e.figure - 0.5) < 0.02 and e.data["coverage_min"] < 1.0
+
+
+# -- reciprocity -------------------------------------------------------------------------------
+
+def test_reciprocal_ggx_passes_to_1e_9_as_model_and_as_node_pairs():
+    ggx = models.create("microfacet", **GGX)
+    tight = {"reciprocity": {"max_relative": 1e-9, "weighted": 1e-9}}
+    o = outcome(ggx, "reciprocity", tight)
+    assert o.status == "pass" and o.figure < 1e-9 and o.data["weighted"] < 1e-9 and o.data["compared"] > 10000
+    table = brdftab.tabulate(ggx, RusinkiewiczGrid(16, 16, 32, phi_d_fold="none"), progress=False)
+    o = outcome(table, "reciprocity", tight)
+    assert o.status == "pass" and o.data["mode"] == "nodes" and o.figure < 1e-9
+
+
+def test_non_reciprocal_toy_fails_with_its_asymmetry():
+    o = outcome(Toy(), "reciprocity", {"reciprocity": {"pairs": 100_000}})
+    assert o.status == "fail"
+    # Monte Carlo over 100 000 importance-sampled pairs: spread over seeds is about 0.001
+    assert abs(o.data["weighted"] - TOY_WEIGHTED) < 0.005
+    assert 0.6 < o.data["max_relative"] <= TOY_MAX + 1e-12
+    assert "declared non-reciprocal" in o.detail
+    # on a table: every node against its φd + π partner (a node quadrature of the same integrals)
+    table = brdftab.tabulate(Toy(), RusinkiewiczGrid(32, 32, 64, phi_d_fold="none"), progress=False)
+    o = outcome(table, "reciprocity")
+    assert o.status == "fail" and o.data["mode"] == "nodes"
+    assert abs(o.data["weighted"] - TOY_WEIGHTED) < 0.003
+    assert 0.6 < o.data["max_relative"] <= TOY_MAX + 1e-12
+
+
+def test_reciprocity_fold_is_reciprocal_by_construction():
+    table = brdftab.tabulate(models.create("microfacet", **GGX), RusinkiewiczGrid(8, 8, 16), progress=False)
+    o = outcome(table, "reciprocity")
+    assert o.status == "pass" and o.data["mode"] == "fold"
+
+
+# -- conventions -------------------------------------------------------------------------------
+
+def test_reciprocity_fold_of_a_non_reciprocal_source_is_an_error():
+    grid = RusinkiewiczGrid(12, 12, 24)  # folded by reciprocity
+    toy = Toy()
+    values = brdftab.tabulate(toy, RusinkiewiczGrid(12, 12, 24, phi_d_fold="none"), progress=False).values[..., :24, :]
+    declared = make_table(values, grid, toy.layout, brdf=toy)  # reciprocal = 0 in its metadata
+    o = outcome(declared, "conventions")
+    assert o.status == "fail" and "declared non-reciprocal" in o.detail
+    liar = ClaimsReciprocity()
+    measured = brdftab.tabulate(liar, grid, progress=False)  # metadata says reciprocal
+    o = outcome(measured, "conventions", reference=liar)
+    assert o.status == "fail" and "is not reciprocal" in o.detail
+    assert o.data["source_max_relative_asymmetry"] > 0.5
+
+
+def test_declared_sample_position_is_checked_against_the_data():
+    ggx = models.create("microfacet", **GGX)
+    centre = RusinkiewiczGrid(16, 16, 32, theta_h_spacing="merl")
+    lower = RusinkiewiczGrid(16, 16, 32, theta_h_spacing="merl", sample_position="lower-edge")
+    good = brdftab.tabulate(ggx, centre, progress=False)
+    o = outcome(good, "conventions", reference=ggx)
+    assert o.status == "pass" and o.data["node_error"] < 1e-12
+    wrong = make_table(brdftab.tabulate(ggx, lower, progress=False).values, centre, ggx.layout, brdf=ggx)
+    o = outcome(wrong, "conventions", reference=ggx)
+    assert o.status == "fail" and "lower-edge" in o.detail
+    assert o.data["node_error_other_position"] < 1e-12 < o.data["node_error"]
+
+
+# -- symmetry ----------------------------------------------------------------------------------
+
+def test_isotropy_declared_and_measured():
+    assert outcome(models.create("microfacet", **GGX), "isotropy").status == "pass"
+    o = outcome(Spun(), "isotropy")
+    assert o.status == "fail" and o.figure > 0.5
+    aniso = models.create("microfacet", alpha_x=0.1, alpha_y=0.4)
+    o = outcome(aniso, "isotropy")
+    assert o.status == "pass" and o.figure > 0.5 and "declared anisotropic" in o.detail
+    grid = RusinkiewiczGrid(8, 8, 16, phi_h=12, phi_d_fold="none")
+    o = outcome(brdftab.tabulate(models.create("microfacet", **GGX), grid, progress=False), "isotropy")
+    assert o.status == "pass" and o.figure < 1e-9
+    t = brdftab.tabulate(aniso, grid, progress=False)
+    t.ds.attrs["isotropic"] = 1
+    o = outcome(Table(t.ds), "isotropy")
+    assert o.status == "fail" and o.figure > 0.5
+
+
+def test_bilateral_symmetry():
+    assert outcome(models.create("microfacet", **GGX), "bilateral").figure < 1e-9
+    o = outcome(Chiral(), "bilateral")
+    assert o.status == "warn" and o.level == "warn" and o.figure > 0.1
+    t = brdftab.tabulate(Chiral(), RusinkiewiczGrid(12, 12, 24, phi_d_fold="none"), progress=False)
+    o = outcome(t, "bilateral")
+    assert o.status == "warn" and o.data["mode"] == "nodes" and o.figure > 0.1
+    o = outcome(brdftab.tabulate(models.create("microfacet", **GGX), RusinkiewiczGrid(12, 12, 24),
+                                 progress=False), "bilateral")
+    assert o.status == "pass" and o.data["mode"] == "nodes" and o.figure < 1e-9
+
+
+# -- tabulation error --------------------------------------------------------------------------
+
+def test_tabulation_error_against_the_model_in_the_provenance():
+    ggx = models.create("microfacet", **GGX)
+    coarse = brdftab.tabulate(ggx, RusinkiewiczGrid(8, 8, 16), progress=False)
+    fine = brdftab.tabulate(ggx, RusinkiewiczGrid(32, 32, 64), progress=False)
+    oc, of = outcome(coarse, "tabulation"), outcome(fine, "tabulation")
+    assert oc.data["model"] == "microfacet"  # rebuilt from the table's provenance
+    assert of.figure < oc.figure / 8          # linear interpolation: error ~ h², 16 times smaller here
+    scaled = make_table(fine.values * 1.1, fine.grid, ggx.layout, brdf=ggx)
+    o = outcome(scaled, "tabulation")
+    assert o.status == "warn"                 # a WARN-level check
+    # at cell centres the table is 1.1 × its own interpolation error ε: 1.1 (1 + ε) − 1
+    assert o.figure == pytest.approx(0.1, abs=1.1 * of.figure + 1e-9)
+    lam = brdftab.tabulate(models.create("lambert", albedo=0.4), RusinkiewiczGrid(6, 6, 12), progress=False)
+    assert outcome(lam, "tabulation").figure < 1e-12
+    unknown = make_table(fine.values, fine.grid, ggx.layout)
+    assert outcome(unknown, "tabulation").status == "skip"
+
+
+# -- configuration -----------------------------------------------------------------------------
+
+def test_configure_layers_and_errors():
+    cfg = configure({"energy": {"tolerance": 0.1}}, [{"energy": {"tolerance": 0.2, "theta_i_max_deg": 60}}])
+    assert cfg["energy"]["tolerance"] == 0.2 and cfg["energy"]["theta_i_max"] == pytest.approx(R(60))
+    assert cfg["reciprocity"]["level"] == "error" and cfg["missing"]["level"] == "warn"
+    with pytest.raises(ParameterError, match="did you mean 'tolerance'"):
+        configure({"energy": {"tolerence": 0.1}})
+    with pytest.raises(ParameterError, match="unknown check"):
+        configure({"enrgy": {}})
+    with pytest.raises(ParameterError, match="expected_theta_i_deg"):
+        configure({"albedo": {"expected": [0.8, 0.7]}})
+    with pytest.raises(ParameterError, match="level"):
+        configure({"energy": {"level": "fatal"}})
+
+
+# -- reports -----------------------------------------------------------------------------------
+
+def validate_json(instance, schema, root=None, path="$"):
+    """A small JSON Schema validator for the keywords the report schema uses; returns errors."""
+    root = root or schema
+    if "$ref" in schema:
+        node = root
+        for part in schema["$ref"].lstrip("#/").split("/"):
+            node = node[part]
+        return validate_json(instance, node, root, path)
+    errs = []
+    types = schema.get("type")
+    if types is not None:
+        types = types if isinstance(types, list) else [types]
+        pytypes = {"object": dict, "array": list, "string": str, "boolean": bool, "null": type(None),
+                   "integer": int, "number": (int, float)}
+        ok = any(isinstance(instance, pytypes[t]) and not (t in ("integer", "number") and isinstance(instance, bool))
+                 for t in types)
+        if not ok:
+            return [f"{path}: {instance!r} is not of type {types}"]
+    if "const" in schema and instance != schema["const"]:
+        errs.append(f"{path}: {instance!r} != {schema['const']!r}")
+    if "enum" in schema and instance not in schema["enum"]:
+        errs.append(f"{path}: {instance!r} not in {schema['enum']}")
+    if "minimum" in schema and isinstance(instance, (int, float)) and instance < schema["minimum"]:
+        errs.append(f"{path}: {instance} < {schema['minimum']}")
+    if "minLength" in schema and isinstance(instance, str) and len(instance) < schema["minLength"]:
+        errs.append(f"{path}: too short")
+    if isinstance(instance, dict):
+        for key in schema.get("required", []):
+            if key not in instance:
+                errs.append(f"{path}: missing {key!r}")
+        props = schema.get("properties", {})
+        for key, value in instance.items():
+            if key in props:
+                errs += validate_json(value, props[key], root, f"{path}.{key}")
+            elif schema.get("additionalProperties") is False:
+                errs.append(f"{path}: unexpected {key!r}")
+    if isinstance(instance, list) and "items" in schema:
+        for i, item in enumerate(instance):
+            errs += validate_json(item, schema["items"], root, f"{path}[{i}]")
+    return errs
+
+
+def jsonschema_errors(instance, schema):
+    """Errors from the jsonschema package too, where it is installed (it is not a dependency)."""
+    try:
+        import jsonschema
+    except ImportError:
+        return []
+    jsonschema.Draft202012Validator.check_schema(schema)
+    return [e.message for e in jsonschema.Draft202012Validator(schema).iter_errors(instance)]
+
+
+def mixed_report():
+    t = brdftab.tabulate(models.create("scale", factor=1.5, term=models.create("lambert", albedo=0.8)),
+                         RusinkiewiczGrid(6, 6, 12), progress=False)
+    return run_checks(t, {"missing": {"level": "off"}}, subject="bright.nc")
+
+
+def test_json_report_matches_the_shipped_schema():
+    schema = load_schema()
+    report = mixed_report()
+    doc = json.loads(json.dumps(run_document([report], [("broken.nc", "not a table")])))
+    assert validate_json(doc, schema) == [] and jsonschema_errors(doc, schema) == []
+    one = json.loads(json.dumps(report.to_json()))
+    sub = {"$ref": "#/$defs/report", "$defs": schema["$defs"]}
+    assert validate_json(one, sub) == [] and jsonschema_errors(one, sub) == []
+    assert one["passed"] is False and one["counts"]["fail"] >= 1
+    names = [c["name"] for c in one["checks"]]
+    assert "missing" not in names and set(names) <= set(CHECKS)
+    # the validator can fail: a status outside the enum and an extra key are rejected
+    bad = json.loads(json.dumps(one))
+    bad["checks"][0]["status"] = "ok"
+    bad["surprise"] = 1
+    assert len(validate_json(bad, sub)) == 2
+
+
+def test_junit_report_structure():
+    report = mixed_report()
+    root = ET.fromstring(report.to_junit())
+    assert root.tag == "testsuites"
+    suites = root.findall("testsuite")
+    assert len(suites) == 1 and suites[0].get("name") == "bright.nc"
+    cases = suites[0].findall("testcase")
+    assert [c.get("name") for c in cases] == [o.name for o in report.outcomes]
+    failed = [c.get("name") for c in cases if c.find("failure") is not None]
+    assert failed == [o.name for o in report.failures] and "energy" in failed
+    assert int(suites[0].get("failures")) == len(failed) == int(root.get("failures"))
+    assert int(suites[0].get("tests")) == len(cases)
+    skipped = [c.get("name") for c in cases if c.find("skipped") is not None]
+    assert skipped == [o.name for o in report.outcomes if o.status == "skip"]
+    energy = next(c for c in cases if c.get("name") == "energy")
+    assert "1.2" in energy.find("failure").get("message")
+
+
+def test_text_report_has_one_line_per_check():
+    report = mixed_report()
+    lines = report.to_text().splitlines()
+    assert lines[0] == "bright.nc:"
+    body = lines[1:-1]
+    assert len(body) == len(report.outcomes)
+    for line, o in zip(body, report.outcomes):
+        assert line.split()[0] == o.status.upper() and line.split()[1] == o.name
+    assert lines[-1].strip().startswith("FAILED")
+
+
+def test_guard_refuses_with_exit_code_1_and_stamps_metadata():
+    t = brdftab.tabulate(models.create("scale", factor=1.5, term=models.create("lambert", albedo=0.8)),
+                         RusinkiewiczGrid(6, 6, 12), progress=False)
+    with pytest.raises(ChecksFailed, match=r"energy: max a\(θi\) = 1\.2") as exc:
+        guard(t, what="x.nc")
+    assert exc.value.exit_code == 1
+    report = guard(t, allow_invalid=True)
+    attrs = t.ds.attrs
+    assert attrs["validation_passed"] == 0 and "energy" in attrs["validation_summary"]
+    assert json.loads(attrs["validation_report"]) == json.loads(json.dumps(report.to_json()))
+    assert len(json.loads(attrs["albedo_theta_i_deg"])) == 90
+    assert np.allclose(json.loads(attrs["albedo_values"]), 1.2, atol=1e-4)

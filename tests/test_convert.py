@@ -1,0 +1,314 @@
+"""``brdftab convert IN OUT``: any readable format to any writable one, copied or resampled.
+
+Tables are made in pytest's temporary folders through the Python API; the command runs
+in-process (``CliRunner``) and, for exit codes and stderr, as a subprocess.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+from click.testing import CliRunner
+
+import brdftab
+from brdftab import formats
+from brdftab.brdf import BRDF
+from brdftab.cli import main
+from brdftab.grids import RusinkiewiczGrid, merl_grid
+from brdftab.table import tabulate
+
+SPECS = Path(__file__).resolve().parent.parent / "specs"
+GOLD = brdftab.models.create("microfacet", distribution="ggx", alpha=0.2, fresnel="conductor",
+                             n=[0.143119, 0.374957, 1.44248], k=[3.98316, 2.38572, 1.60322])
+RESAMPLED = re.compile(r"max relative difference ([0-9.e+-]+), rms ([0-9.e+-]+) \((\d+) check points")
+
+
+def _cli(*args):
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    return result
+
+
+def _run(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "brdftab", *map(str, args)], capture_output=True, text=True,
+                          cwd=cwd, timeout=300)
+
+
+def _one_error(stderr, code, *expected, exit_code=2):
+    assert code == exit_code, f"exit code {code}, stderr {stderr!r}"
+    lines = stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("brdftab: error: "), stderr
+    assert "Traceback" not in stderr
+    for text in expected:
+        assert text in lines[0], f"{text!r} missing from {lines[0]!r}"
+    return lines[0]
+
+
+def _partials(folder: Path):
+    return [p.name for p in folder.iterdir() if ".partial-" in p.name or p.name.endswith(".lock")]
+
+
+@pytest.fixture(scope="module")
+def rusi_nc(tmp_path_factory) -> Path:
+    """GGX gold on a coarse isotropic Rusinkiewicz grid (not the MERL grid)."""
+    path = tmp_path_factory.mktemp("src") / "gold-rusi.nc"
+    brdftab.save(GOLD, path, grid=RusinkiewiczGrid(30, 30, 60))
+    return path
+
+
+@pytest.fixture(scope="module")
+def merl_nc(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("src") / "gold-merl.nc"
+    brdftab.save(GOLD, path, grid=merl_grid(), dtype="float32")
+    return path
+
+
+# --------------------------------------------------------------------------------------------
+# round trips
+
+def test_same_grid_is_copied_value_identical(rusi_nc, tmp_path):
+    out = tmp_path / "copy.nc"
+    result = _cli("convert", rusi_nc, out)
+    assert result.exit_code == 0, result.stderr
+    assert "copied" in result.stdout and "resampled" not in result.stdout
+    with xr.open_dataset(rusi_nc) as a, xr.open_dataset(out) as b:
+        assert a["brdf"].dtype == b["brdf"].dtype
+        np.testing.assert_array_equal(a["brdf"].values, b["brdf"].values)
+        for name in a.coords:
+            np.testing.assert_array_equal(a[name].values, b[name].values)
+        assert a.attrs == b.attrs  # provenance carried over unchanged
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["copy.nc"]
+
+
+def test_rusinkiewicz_to_merl_reports_resampling(rusi_nc, tmp_path):
+    out = tmp_path / "merl.nc"
+    result = _cli("convert", rusi_nc, out, "--grid", "merl")
+    assert result.exit_code == 0, result.stderr
+    assert "resampled" in result.stdout and "copied" not in result.stdout
+    m = RESAMPLED.search(result.stdout)
+    assert m, result.stdout
+    max_rel, rms, points = float(m.group(1)), float(m.group(2)), int(m.group(3))
+    assert 0 < rms <= max_rel < 0.5  # a 30 x 30 x 60 table resampled onto MERL's grid
+    assert points >= 1000
+    written = brdftab.open(out)
+    assert written.grid.equals(merl_grid())
+    # the written nodes hold the source table evaluated there (tabulated, not copied)
+    source = brdftab.open(rusi_nc)
+    wi, wo = merl_grid().directions(500_000, 500_200)
+    np.testing.assert_allclose(written.values.reshape(-1, 3)[500_000:500_200], source.eval(wi, wo), rtol=1e-12)
+    assert written.ds.attrs["converted_from"] == rusi_nc.name
+
+
+def test_resampling_figures_as_json(rusi_nc, tmp_path):
+    result = _cli("convert", rusi_nc, tmp_path / "r.nc", "--grid", "{type = 'rusinkiewicz', n_theta_h = 20}",
+                  "--json")
+    assert result.exit_code == 0, result.stderr
+    data = json.loads(result.stdout)
+    assert data["resampled"] is True and data["format"] == "netcdf"
+    assert data["target_grid"].startswith("rusinkiewicz theta_h[20]")
+    d = data["difference"]
+    assert 0 < d["rms_relative_difference"] <= d["max_relative_difference"] and d["check_points"] > 1000
+    assert data["checks"]["passed"] is True
+
+
+def test_same_grid_merl_netcdf_to_merl_binary_is_a_copy(merl_nc, tmp_path):
+    out = tmp_path / "gold.binary"
+    result = _cli("convert", merl_nc, out)
+    assert result.exit_code == 0, result.stderr
+    assert "copied" in result.stdout
+    back = brdftab.open(out)
+    np.testing.assert_allclose(back.values, brdftab.open(merl_nc).values, rtol=1e-6)
+
+
+# --------------------------------------------------------------------------------------------
+# every registered format, none named here
+
+@pytest.fixture(scope="module")
+def writable():
+    return sorted(n for n, f in formats.available().items() if f.write is not None)
+
+
+def test_convert_into_every_registered_format(merl_nc, tmp_path, writable):
+    assert "netcdf" in writable
+    for name in writable:
+        fmt = formats.FORMATS[name]
+        out = tmp_path / f"out-{name}{fmt.extensions[0]}"
+        proc = _run("convert", merl_nc, out, "--to", name)
+        assert "Traceback" not in proc.stderr
+        if proc.returncode == 0:
+            assert out.is_file() and out.stat().st_size > 0, name
+            assert proc.stdout.startswith(f"wrote {out}"), proc.stdout
+            if fmt.read is not None:  # and back again, onto a grid brdftab writes
+                back = tmp_path / f"back-{name}.nc"
+                proc = _run("convert", out, back, "--grid", "merl")
+                assert proc.returncode in (0, 1, 2), proc.stderr
+                assert "Traceback" not in proc.stderr and "internal error" not in proc.stderr, proc.stderr
+        else:
+            _one_error(proc.stderr, proc.returncode, exit_code=proc.returncode)
+            assert not out.exists()
+        assert _partials(tmp_path) == []
+
+
+def test_a_format_registered_later_works_without_changes(rusi_nc, tmp_path):
+    written = []
+
+    def write(table, path, scale=1.0):
+        written.append(scale)
+        (table.ds * 1).to_netcdf(path, engine="netcdf4")
+
+    fmt = formats.FileFormat(name="plugin-test", extensions=(".plug",), description="test", read=None, write=write,
+                             options={"scale": "a number"})
+    formats.register(fmt)
+    try:
+        result = _cli("convert", rusi_nc, tmp_path / "x.plug", "-o", "scale=2.5")
+        assert result.exit_code == 0, result.stderr
+        assert written == [2.5] and "copied" in result.stdout
+        result = _cli("convert", rusi_nc, tmp_path / "y.dat", "--to", "plugin-test", "--grid", "merl")
+        assert result.exit_code == 0, result.stderr
+        assert "resampled" in result.stdout and RESAMPLED.search(result.stdout)
+    finally:
+        formats.FORMATS.pop("plugin-test", None)
+
+
+# --------------------------------------------------------------------------------------------
+# options and grids from the command line
+
+def test_format_options(rusi_nc, tmp_path):
+    result = _cli("convert", rusi_nc, tmp_path / "f32.nc", "-o", "dtype=float32", "--option", "complevel=9")
+    assert result.exit_code == 0, result.stderr
+    with xr.open_dataset(tmp_path / "f32.nc") as ds:
+        assert ds["brdf"].dtype == np.float32
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["-o", "dtype=float16"], ["dtype", "float16"]),
+    (["-o", "compression=4"], ["compression", "unknown option"]),
+    (["-o", "dtype"], ["--option", "KEY=VALUE"]),
+    (["-o", "dtype=float32", "-o", "dtype=float64"], ["dtype", "twice"]),
+    (["--to", "netcdff"], ["netcdff", "did you mean 'netcdf'"]),
+    (["--grid", "merll"], ["--grid", "merll"]),
+    (["--grid", "{type = 'rusinkiewicz', n_theta_h = 0}"], ["--grid", "n_theta_h"]),
+    (["--grid", "{type = "], ["--grid"]),
+    (["--grid", "merl", "--grid-file", "x.toml"], ["--grid", "--grid-file"]),
+    (["--grid-file", "no-such.toml"], ["no-such.toml"]),
+])
+def test_bad_options_are_one_line(rusi_nc, tmp_path, args, expected):
+    out = tmp_path / "x.nc"
+    result = _cli("convert", rusi_nc, out, *args)
+    _one_error(result.stderr, result.exit_code, *expected)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_grid_from_a_grid_file_or_a_spec(rusi_nc, tmp_path):
+    grid_toml = tmp_path / "grid.toml"
+    grid_toml.write_text('[grid]\ntype = "rusinkiewicz"\nn_theta_h = 10\nn_theta_d = 10\nn_phi_d = 20\n')
+    result = _cli("convert", rusi_nc, tmp_path / "g.nc", "--grid-file", grid_toml)
+    assert result.exit_code == 0, result.stderr
+    assert brdftab.open(tmp_path / "g.nc").grid.shape == (10, 10, 20)
+    result = _cli("convert", rusi_nc, tmp_path / "s.nc", "--grid-file", SPECS / "ggx-gold.toml")
+    assert result.exit_code == 0, result.stderr
+    assert brdftab.open(tmp_path / "s.nc").grid.equals(merl_grid())
+    (tmp_path / "nogrid.toml").write_text("[model]\nname = 'lambert'\n")
+    result = _cli("convert", rusi_nc, tmp_path / "n.nc", "--grid-file", tmp_path / "nogrid.toml")
+    _one_error(result.stderr, result.exit_code, "nogrid.toml", "[grid]")
+
+
+# --------------------------------------------------------------------------------------------
+# refusals: the input itself, existing files, invalid input, lost symmetries
+
+def test_output_cannot_be_the_input(rusi_nc, tmp_path):
+    before = rusi_nc.read_bytes()
+    for extra in ([], ["--overwrite"]):
+        result = _cli("convert", rusi_nc, rusi_nc, *extra)
+        _one_error(result.stderr, result.exit_code, rusi_nc.name, "input table")
+    link = tmp_path / "link.nc"
+    link.symlink_to(rusi_nc)
+    result = _cli("convert", rusi_nc, link, "--overwrite", "--grid", "merl")
+    _one_error(result.stderr, result.exit_code, "link.nc", "input table")
+    assert rusi_nc.read_bytes() == before and link.is_symlink()
+
+
+def test_existing_output_needs_overwrite(rusi_nc, tmp_path):
+    out = tmp_path / "x.nc"
+    out.write_bytes(b"keep")
+    proc = _run("convert", rusi_nc, out)
+    _one_error(proc.stderr, proc.returncode, "x.nc", "--overwrite")
+    assert out.read_bytes() == b"keep"
+    assert _cli("convert", rusi_nc, out, "--overwrite").exit_code == 0
+    assert brdftab.open(out).grid.shape == (30, 30, 60)
+
+
+class _HalfNaN(BRDF):
+    name = "half-nan"
+
+    def _eval(self, wi, wo, lam, n):
+        f = np.full((wi.shape[0], n), 0.2)
+        f[wi[:, 0] > 0.3] = np.nan
+        return f
+
+
+def test_invalid_input_is_refused_with_exit_code_1(tmp_path):
+    bad = tmp_path / "bad.nc"
+    brdftab.save(tabulate(_HalfNaN(), RusinkiewiczGrid(6, 6, 8), progress=False), bad)
+    out = tmp_path / "out.nc"
+    proc = _run("convert", bad, out)
+    line = _one_error(proc.stderr, proc.returncode, "bad.nc", "finite", "NaN", "figure", "--allow-invalid",
+                      exit_code=1)
+    assert re.search(r"figure \d+", line)
+    assert not out.exists() and _partials(tmp_path) == []
+    proc = _run("convert", bad, out, "--allow-invalid")
+    assert proc.returncode == 0, proc.stderr
+    assert out.exists() and "warning" in proc.stderr and "finite" in proc.stderr
+    # a check can be turned down, as for brdftab validate
+    proc = _run("convert", bad, tmp_path / "lenient.nc", "--level", "finite=warn")
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_anisotropic_to_merl_needs_fold(tmp_path):
+    aniso = brdftab.models.create("microfacet", alpha_x=0.2, alpha_y=0.5)
+    src = tmp_path / "aniso.nc"
+    brdftab.save(aniso, src, grid=RusinkiewiczGrid(8, 8, 12, phi_h=12, phi_d_fold="reciprocity"))
+    for target, extra in ((tmp_path / "a.nc", ["--grid", "merl"]), (tmp_path / "a.binary", [])):
+        result = _cli("convert", src, target, *extra)
+        _one_error(result.stderr, result.exit_code, "anisotropic", "--fold")
+        assert not target.exists()
+    small = tmp_path / "iso.nc"
+    result = _cli("convert", src, small, "--grid", "{type = 'rusinkiewicz', n_theta_h = 8, n_theta_d = 8, "
+                  "n_phi_d = 12}", "--fold")
+    assert result.exit_code == 0, result.stderr
+    assert "folded" in result.stdout and "anisotropic" in result.stdout
+    table = brdftab.open(small)
+    assert table.isotropic
+    # the written value is the mean over rotations about the normal (12 phi_h nodes: exact)
+    source = brdftab.open(src)
+    wi, wo = table.grid.directions(100, 101)
+    rots = [np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+            for a in 2 * np.pi * np.arange(12) / 12]
+    expected = np.mean([source.eval(wi @ r.T, wo @ r.T) for r in rots], axis=0)
+    np.testing.assert_allclose(table.values.reshape(-1, 1)[100], expected[0], rtol=1e-9)
+
+
+def test_grid_outside_the_source_domain_is_refused(tmp_path):
+    src = tmp_path / "gonio.nc"
+    grid = brdftab.grids.grid_from_config({"type": "spherical", "theta_i_deg": [30], "phi_i_deg": [0],
+                                           "theta_o_deg": [0, 20, 40, 60], "phi_o_deg": [0, 90, 180, 270]})
+    brdftab.save(brdftab.models.create("lambert", albedo=0.5), src, grid=grid)
+    result = _cli("convert", src, tmp_path / "m.nc", "--grid", "merl")
+    _one_error(result.stderr, result.exit_code, "outside the source's domain", "--allow-invalid")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gonio.nc"]
+
+
+def test_progress_covers_the_write(rusi_nc, tmp_path, monkeypatch):
+    from brdftab import table as table_module
+
+    monkeypatch.setattr(table_module, "PROGRESS_DELAY", 0.0)
+    result = _cli("convert", rusi_nc, tmp_path / "p.nc", "--grid", "merl", "--progress")
+    assert result.exit_code == 0, result.stderr
+    assert "tabulating" in result.stderr and "writing p.nc" in result.stderr
