@@ -188,20 +188,27 @@ def main():
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @click.option("--allow-invalid", is_flag=True, default=None,
               help="Write even if a check fails (the report is stored in the file's metadata).")
+@click.option("--level", "levels", multiple=True, metavar="CHECK=LEVEL",
+              help="Set a check's level before export: off, warn or error (repeatable).")
+@click.option("--set", "settings", multiple=True, metavar="CHECK.NAME=VALUE",
+              help="Set a check threshold before export, e.g. energy.tolerance=0.02 (repeatable).")
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: on a terminal, for runs over 2 s).")
-def tabulate(spec, out_dir, overwrite, allow_invalid, progress):
-    """Tabulate the model of SPEC on its grid and write its outputs."""
+def tabulate(spec, out_dir, overwrite, allow_invalid, levels, settings, progress):
+    """Tabulate the model of SPEC on each output's grid, validate, and write its outputs."""
+    from .cli_validate import cli_layer
     from .pipeline import run
     from .spec import load_spec
 
+    layer = cli_layer(levels, settings)
     s = load_spec(spec)
-    result = run(s, out_dir=out_dir, overwrite=overwrite, allow_invalid=allow_invalid, progress=progress)
-    t = result.table
-    what = (f"{len(t.wavelengths)} wavelength{'s' if len(t.wavelengths) > 1 else ''}" if t.spectral
-            else f"channel{'s' if len(t.channels) > 1 else ''} {', '.join(t.channels)}")
-    for path in result.written:
-        click.echo(f"wrote {path} ({t.grid.describe()}, {what})")
+    result = run(s, out_dir=out_dir, overwrite=overwrite, allow_invalid=allow_invalid, progress=progress,
+                 checks=layer)
+    for path, t in zip(result.written, result.tables):
+        what = (f"{len(t.wavelengths)} wavelength{'s' if len(t.wavelengths) > 1 else ''}" if t.spectral
+                else f"channel{'s' if len(t.channels) > 1 else ''} {', '.join(t.channels)}")
+        grid = getattr(t, "grid", None)
+        click.echo(f"wrote {path} ({grid.describe() if grid is not None else 'its own grid'}, {what})")
     if not result.report.passed:
         click.echo(f"brdftab: warning: written despite failed checks: {result.report.summary()}", err=True)
 

@@ -401,12 +401,16 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
             payload = _tabulate(brdf, out_grid, wavelengths, table, source, progress)
             bad = int(np.isnan(payload.values).any(axis=-1).sum())
             if bad and not allow_invalid:
-                raise ValidationError(f"refusing to convert {source}: {bad} of {out_grid.size} nodes of "
+                raise BrdftabError(f"refusing to convert {source}: {bad} of {out_grid.size} nodes of "
                                       f"{out_grid.describe()} lie outside the source's domain or read missing "
                                       "samples (NaN); choose a grid inside it (--grid) or pass --allow-invalid")
         elif wavelengths is not None and not same_lam:
             raise BrdftabError(f"--grid wavelengths_nm: format {fmt.name} samples the source itself; "
                                "it cannot resample wavelengths")
+        if hasattr(payload, "ds"):
+            from .checks import stamp
+
+            stamp(payload, report)  # the input's report travels with the table (--allow-invalid included)
         with write_progress(target.name, progress, _delay(started)):
             written = formats.write(payload, target, grid=out_grid, format=fmt.name, overwrite=overwrite,
                                     **options)

@@ -36,7 +36,10 @@ class FormatError(BrdftabError):
 
 
 class ValidationError(BrdftabError):
-    """A table failed a check that export requires."""
+    """A BRDF failed a check that export requires (exit code 1: the input was readable, the
+    data is not acceptable)."""
+
+    exit_code = 1
 
 
 class BrdftabWarning(UserWarning):

@@ -15,10 +15,11 @@ from dataclasses import dataclass, field
 
 from . import formats
 from ._atomic import check_target, claim, same_file, terminate_as_interrupt, write_progress
+from .brdf import BRDF
 from .checks import Report, guard
 from .errors import BrdftabError
 from .spec import Spec
-from .table import Table, tabulate
+from .table import tabulate
 
 __all__ = ["Result", "Planned", "plan", "run"]
 
@@ -107,28 +108,47 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
     result = Result()
     # Claim every target before any work: a concurrent run to the same file is refused now.
     with terminate_as_interrupt(), claim([p.target for p in planned], overwrite, inputs):
-        jobs = []  # (Planned, brdf to write, report)
+        jobs = []  # (Planned, payload to write, the BRDF that payload holds)
         for grid, members in _groups(planned):
-            # formats with their own prepare (they sample the model themselves) get the model
+            # one tabulation per target grid; formats with their own prepare (they sample the
+            # model themselves, like the RGL writer) are given the model
             needs_table = any(m.format.prepare is None for m in members)
             if needs_table:
                 source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance)
             else:
                 source = spec.model
-            # validate before export; a table's metadata gets the report and its a(θi) curve
-            report = guard(source, layers, allow_invalid=allow, what=", ".join(str(m.target) for m in members),
-                           reference=spec.model, wavelengths=spec.wavelengths,
-                           subject=f"{spec.path.name} on {grid.describe() if grid is not None else 'its own grid'}")
             for m in members:
-                jobs.append((m, source, report))
-        for m, source, report in jobs:
+                options = _with_wavelengths(m, spec.wavelengths)
+                with formats.naming(m.target):
+                    payload = formats.prepare(m.format, source, m.grid, options)
+                jobs.append((m, options, payload, payload if isinstance(payload, BRDF) else source))
+        # validate what is written, before anything is: a table's metadata gets the report
+        reports = {}
+        for m, _, _, checked in jobs:
+            key = id(checked)
+            if key in reports:
+                continue
+            where = ", ".join(str(j[0].target) for j in jobs if j[3] is checked)
+            grid = getattr(checked, "grid", None)
+            reports[key] = guard(checked, layers, allow_invalid=allow, what=where, reference=spec.model,
+                                 wavelengths=spec.wavelengths,
+                                 subject=f"{spec.path.name} on {grid.describe() if grid is not None else 'its own grid'}")
+        for m, options, payload, checked in jobs:
             with write_progress(m.target.name, progress, _progress_delay(started)):
-                written = formats.write(source, m.target, grid=m.grid, format=m.format.name, overwrite=overwrite,
-                                        **m.options)
+                formats.write_prepared(m.format, payload, m.target, overwrite=overwrite, options=options)
             result.written.append(m.target)
-            result.tables.append(written if isinstance(written, Table) else source)
-            result.reports.append(report)
+            result.tables.append(payload if hasattr(payload, "grid") else checked)
+            result.reports.append(reports[id(checked)])
     return result
+
+
+def _with_wavelengths(m, wavelengths) -> dict:
+    """A format that samples the model itself is given the spec's wavelengths when it takes them."""
+    options = dict(m.options)
+    if (wavelengths is not None and m.format.prepare is not None and "wavelengths_nm" in m.format.options
+            and "wavelengths_nm" not in options):
+        options["wavelengths_nm"] = [float(x) for x in wavelengths]
+    return options
 
 
 def _progress_delay(started: float) -> float:

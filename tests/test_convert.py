@@ -83,7 +83,10 @@ def test_same_grid_is_copied_value_identical(rusi_nc, tmp_path):
         np.testing.assert_array_equal(a["brdf"].values, b["brdf"].values)
         for name in a.coords:
             np.testing.assert_array_equal(a[name].values, b[name].values)
-        assert a.attrs == b.attrs  # provenance carried over unchanged
+        fresh = ("validation_", "albedo_")  # the conversion's own check report is added
+        keep = lambda d: {k: v for k, v in d.items() if not k.startswith(fresh)}  # noqa: E731
+        assert keep(a.attrs) == keep(b.attrs)  # provenance carried over unchanged
+        assert "validation_report" in b.attrs
     assert sorted(p.name for p in tmp_path.iterdir()) == ["copy.nc"]
 
 
@@ -312,3 +315,33 @@ def test_progress_covers_the_write(rusi_nc, tmp_path, monkeypatch):
     result = _cli("convert", rusi_nc, tmp_path / "p.nc", "--grid", "merl", "--progress")
     assert result.exit_code == 0, result.stderr
     assert "tabulating" in result.stderr and "writing p.nc" in result.stderr
+
+
+def test_allow_invalid_conversion_keeps_the_report(tmp_path):
+    import json
+
+    import xarray as xr
+
+    from brdftab.grids import RusinkiewiczGrid
+    from brdftab.table import make_table
+
+    g = RusinkiewiczGrid(6, 6, 6)
+    values = np.full(g.shape + (1,), 0.1)
+    values[1, 1, 1, 0] = np.nan
+    from brdftab.channels import Layout
+
+    bad = make_table(values, g, Layout())
+    src = tmp_path / "bad.nc"
+    brdftab.save(bad, src)
+    from click.testing import CliRunner
+
+    from brdftab.cli import main
+
+    r = CliRunner().invoke(main, ["convert", str(src), str(tmp_path / "out.nc")])
+    assert r.exit_code == 1 and not (tmp_path / "out.nc").exists()
+    r = CliRunner().invoke(main, ["convert", str(src), str(tmp_path / "out.nc"), "--allow-invalid"])
+    assert r.exit_code == 0, r.output
+    with xr.open_dataset(tmp_path / "out.nc") as ds:
+        rep = json.loads(ds.attrs["validation_report"])
+        assert ds.attrs["validation_passed"] == 0
+    assert any(c["name"] == "finite" and c["status"] == "fail" for c in rep["checks"])

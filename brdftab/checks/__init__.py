@@ -36,7 +36,7 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import BrdftabWarning, ParameterError, ValidationError
-from ..params import Param, parse_params, suggest
+from ..params import parse_params, suggest
 
 __all__ = ["Check", "ChecksFailed", "Context", "Outcome", "Report", "CHECKS", "LEVELS", "STATUSES", "SCHEMA_PATH",
            "SCHEMA_VERSION", "register", "run_checks", "configure", "guard", "stamp", "load_schema", "run_document",

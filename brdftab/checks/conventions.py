@@ -33,7 +33,7 @@ NODES = 2048
 
 
 def _median_error(t, m):
-    t, m = np.asarray(t, float), np.asarray(m, float)
+    t, m = np.broadcast_arrays(np.asarray(t, float), np.asarray(m, float))  # a grey model under RGB data
     ok = np.isfinite(t) & np.isfinite(m)
     top = float(np.abs(m[ok]).max()) if ok.any() else 0.0
     sig = ok & (np.abs(m) > 1e-3 * top) & (top > 0)

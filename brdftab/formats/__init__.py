@@ -24,6 +24,7 @@ samples D and the VNDF) supplies its own ``prepare``.
 
 from __future__ import annotations
 
+import contextlib
 import importlib
 import importlib.util
 from dataclasses import dataclass, field
@@ -34,8 +35,8 @@ from .._atomic import atomic_path, check_target, deferred_signals
 from ..errors import BrdftabError, FormatError, ParameterError
 from ..params import suggest
 
-__all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "format_for", "target_grid",
-           "prepare", "available"]
+__all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "write_prepared", "format_for",
+           "target_grid", "prepare", "available", "naming"]
 
 #: Bytes of a file's head passed to ``magic`` and ``sniff``.
 HEAD_BYTES = 64
@@ -201,16 +202,28 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
     from ..table import Table
 
     requested = grid if grid is not None else (brdf.grid if isinstance(brdf, Table) else None)
-    try:
+    with naming(path):
         payload = prepare(fmt, brdf, target_grid(fmt, requested, options), options)
+    write_prepared(fmt, payload, path, overwrite=overwrite, options=options)
+    return payload
+
+
+@contextlib.contextmanager
+def naming(path):
+    """Errors raised inside the block name ``path`` (same error type)."""
+    try:
+        yield
     except BrdftabError as exc:
         if not str(exc).startswith(str(path)):
-            exc.args = (f"{path}: {exc}",)  # same error type, now naming the file
+            exc.args = (f"{path}: {exc}",)
         raise
+
+
+def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, options: dict | None = None):
+    """Write what :func:`prepare` returned to ``path`` atomically (no tabulation here)."""
     with atomic_path(path, overwrite=overwrite) as tmp:
         with deferred_signals():
-            fmt.write(payload, tmp, **options)
-    return payload
+            fmt.write(payload, tmp, **dict(options or {}))
 
 
 #: Format modules shipped with brdftab (each registers itself on import). A module whose
