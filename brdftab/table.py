@@ -240,15 +240,15 @@ def _horizon_ghosts(values, above, grid, missing=None):
     interpolation towards it would pull a table down within a cell of the horizon. Each
     below-horizon node whose two nearer neighbours along a ghost axis are valid gets the
     quadratic extrapolation of the three nearer valid nodes (linear where there are only two;
-    clamped at 0), and counts as valid for interpolation. The axes
-    are tried in turn (θd, then θh for Rusinkiewicz grids; θo, θi for gonio grids), each pass
-    seeing the ghosts of the one before. The stored table is unchanged.
-    Returns ``(values, valid_nodes)``.
+    clamped at 0), and counts as valid for interpolation. The axes are tried in turn (θd,
+    then θh for Rusinkiewicz grids; θo, θi for gonio grids), each pass seeing the ghosts of
+    the one before. The stored table is unchanged. Only the nodes next to the horizon are
+    computed (about 1 % of a MERL grid). Returns ``(values, valid_nodes)``.
     """
-    vals = np.array(values, dtype=float, copy=True)
+    vals = None  # copied on the first ghost
     ok = np.array(above, copy=True)
+    bad = None if missing is None else missing.any(axis=-1)
     for name in GHOST_AXES:
-        node_ok = ok if missing is None else (ok & ~missing.any(axis=-1))
         if name not in grid.dims:
             continue
         a = grid.dims.index(name)
@@ -257,40 +257,46 @@ def _horizon_ghosts(values, above, grid, missing=None):
         if n < 3:
             continue
         for step in (1, -1):  # ghosts above (θ increasing) and below the valid run
-            idx_g = np.arange(n)
-            i1, i2, i3 = idx_g - step, idx_g - 2 * step, idx_g - 3 * step
-            inside = (i1 >= 0) & (i1 < n) & (i2 >= 0) & (i2 < n)
-            g, j1, j2 = idx_g[inside], i1[inside], i2[inside]
-            j3 = i3[inside]
-            has3 = (j3 >= 0) & (j3 < n)
-            j3 = np.clip(j3, 0, n - 1)
-            take = lambda arr, i: np.take(arr, i, axis=a)  # noqa: E731
-            cand = ~take(ok, g) & take(node_ok, j1) & take(node_ok, j2)
-            if not cand.any():
+            node_ok = ok if bad is None else (ok & ~bad)
+            prev1 = _shifted(node_ok, step, a)
+            prev2 = _shifted(node_ok, 2 * step, a)
+            cand = ~ok & prev1 & prev2
+            where = np.nonzero(cand)
+            if where[0].size == 0:
                 continue
-            shape = [1] * vals.ndim
-            shape[a] = g.size
-            xg, x1, x2, x3 = x[g], x[j1], x[j2], x[j3]
-            v1, v2, v3 = take(vals, j1), take(vals, j2), take(vals, j3)
-            # quadratic (Lagrange) through three valid nodes where there are three, else linear
-            lin = v1 + ((xg - x1) / (x1 - x2)).reshape(shape) * (v1 - v2)
+            if vals is None:
+                vals = np.array(values, dtype=float, copy=True)
+            g = where[a]
+            j1, j2, j3 = g - step, g - 2 * step, g - 3 * step
+            at = lambda j: where[:a] + (j,) + where[a + 1:]  # noqa: E731
+            has3 = (j3 >= 0) & (j3 < n)
+            j3c = np.clip(j3, 0, n - 1)
+            has3 &= node_ok[at(j3c)]
+            xg, x1, x2, x3 = x[g], x[j1], x[j2], x[j3c]
+            v1, v2, v3 = vals[at(j1)], vals[at(j2)], vals[at(j3c)]
+            lin = v1 + ((xg - x1) / (x1 - x2))[:, None] * (v1 - v2)
             with np.errstate(divide="ignore", invalid="ignore"):
-                l1 = ((xg - x2) * (xg - x3) / ((x1 - x2) * (x1 - x3))).reshape(shape)
-                l2 = ((xg - x1) * (xg - x3) / ((x2 - x1) * (x2 - x3))).reshape(shape)
-                l3 = ((xg - x1) * (xg - x2) / ((x3 - x1) * (x3 - x2))).reshape(shape)
+                l1 = ((xg - x2) * (xg - x3) / ((x1 - x2) * (x1 - x3)))[:, None]
+                l2 = ((xg - x1) * (xg - x3) / ((x2 - x1) * (x2 - x3)))[:, None]
+                l3 = ((xg - x1) * (xg - x2) / ((x3 - x1) * (x3 - x2)))[:, None]
                 quad = l1 * v1 + l2 * v2 + l3 * v3
-            use3 = has3.reshape(shape) & take(node_ok, j3)[..., None]
-            ghost = np.maximum(np.where(use3, quad, lin), 0.0)
-            cur = take(vals, g)
-            new = np.where(cand[..., None], ghost, cur)
-            sl = [slice(None)] * vals.ndim
-            sl[a] = g
-            vals[tuple(sl)] = new
-            okv = take(ok, g) | cand
-            sl_ok = [slice(None)] * ok.ndim
-            sl_ok[a] = g
-            ok[tuple(sl_ok)] = okv
-    return vals, ok
+            vals[where] = np.maximum(np.where(has3[:, None], quad, lin), 0.0)
+            ok[where] = True
+    return (values if vals is None else vals), ok
+
+
+def _shifted(mask, step, axis):
+    """``out[i] = mask[i - step]`` along ``axis`` (False where ``i - step`` is off the axis)."""
+    out = np.zeros_like(mask)
+    n = mask.shape[axis]
+    src = [slice(None)] * mask.ndim
+    dst = [slice(None)] * mask.ndim
+    if step > 0:
+        src[axis], dst[axis] = slice(0, n - step), slice(step, n)
+    else:
+        src[axis], dst[axis] = slice(-step, n), slice(0, n + step)
+    out[tuple(dst)] = mask[tuple(src)]
+    return out
 
 
 def _missing_mask(values, attrs):

@@ -144,3 +144,13 @@ def test_equality():
     assert merl_grid().equals(merl_grid())
     assert not merl_grid().equals(merl_grid("lower-edge"))
     assert not merl_grid().equals(RusinkiewiczGrid(90, 90, 180))  # linear θh
+
+
+@pytest.mark.parametrize("grid", [merl_grid(), merl_grid("lower-edge"), RusinkiewiczGrid(8, 9, 10, 12, phi_d_fold="none"),
+                                  RusinkiewiczGrid(np.radians([0, 10, 45, 80, 90]), np.radians([0, 30, 89.9, 90]), 7)])
+def test_rusinkiewicz_horizon_mask_equals_the_directions(grid):
+    # the closed form for wi_z, wo_z against the node directions themselves
+    wi, wo = grid.directions()
+    expected = ((wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12)).reshape(grid.shape)
+    assert np.array_equal(grid.node_above_horizon(), expected)
+    assert 0 < expected.sum() < expected.size

@@ -129,6 +129,24 @@ class RusinkiewiczGrid(Grid):
         ih, itd, ipd = idx
         return _hd_to_io_trig(cth[ih], sth[ih], 1.0, 0.0, ctd[itd], std[itd], cpd[ipd], spd[ipd])
 
+    def node_above_horizon(self) -> np.ndarray:
+        """Both directions above the horizon, from the node angles (φh does not change z):
+        wi_z = cosθh cosθd − sinθh sinθd cosφd, wo_z = cosθh cosθd + sinθh sinθd cosφd."""
+        cached = getattr(self, "_above", None)
+        if cached is not None:
+            return cached
+        from ..brdf import HORIZON
+
+        th, td, pd = (self.axes[i] for i in ((0, 2, 3) if self.anisotropic else (0, 1, 2)))
+        a = (np.cos(th.values)[:, None, None] * np.cos(td.values)[None, :, None])
+        b = np.abs(np.sin(th.values)[:, None, None] * np.sin(td.values)[None, :, None]
+                   * np.cos(pd.values)[None, None, :])
+        above = (a - b) > HORIZON  # the lower of wi_z and wo_z
+        if self.anisotropic:
+            above = np.broadcast_to(above[:, None], self.shape)
+        self._above = above
+        return above
+
     def _coordinates(self, wi, wo, isotropic: bool = False):
         th, ph, td, pd = io_to_hd(wi, wo)
         pd = fold_phi_d(pd, self.phi_d_fold)
