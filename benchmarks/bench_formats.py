@@ -28,7 +28,6 @@ import argparse
 import os
 import platform
 import shutil
-import statistics
 import struct
 import sys
 import tempfile
@@ -38,19 +37,9 @@ from pathlib import Path
 import numpy as np
 
 import brdftab
+from _timing import GOLD, timeit  # benchmarks/ is on sys.path when run as a script
 
-GOLD = dict(n=[0.143119, 0.374957, 1.44248], k=[3.98316, 2.38572, 1.60322])
 
-
-def timeit(fn, repeat):
-    """Warm up once, then time ``repeat`` calls; returns (best, median)."""
-    fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), statistics.median(times)
 
 
 def report(label, best, median, floor=None):
@@ -68,10 +57,10 @@ def bench_file(label, src: Path, work: Path, repeat: int, copy_best: float):
     corr = table.ds.get("merl_raw_ulp_correction")
     needed = "none needed" if corr is None else f"{int((corr.values != 0).sum()):,} samples ({corr.dtype})"
     print(f"  ulp corrections: {needed}")
-    best, median = timeit(lambda: brdftab.open(src).values, repeat)
+    best, median, _ = timeit(lambda: brdftab.open(src).values, repeat)
     report("  read MERL (brdftab.open)", best, median, copy_best)
     out = work / "out.binary"
-    best, median = timeit(lambda: save(table, out), repeat)
+    best, median, _ = timeit(lambda: save(table, out), repeat)
     report("  write MERL (brdftab.save of the table)", best, median, copy_best)
     nc, back = work / "t.nc", work / "back.binary"
 
@@ -79,11 +68,11 @@ def bench_file(label, src: Path, work: Path, repeat: int, copy_best: float):
         save(brdftab.open(src), nc)
         save(brdftab.open(nc), back)
 
-    best, median = timeit(round_trip, repeat)
+    best, median, _ = timeit(round_trip, repeat)
     report("  MERL -> netCDF -> MERL", best, median, copy_best)
-    best, median = timeit(lambda: save(table, nc), repeat)
+    best, median, _ = timeit(lambda: save(table, nc), repeat)
     report("    of which: netCDF write (zlib level 4)", best, median, copy_best)
-    best, median = timeit(lambda: brdftab.open(nc).values, repeat)
+    best, median, _ = timeit(lambda: brdftab.open(nc).values, repeat)
     report("    of which: netCDF read", best, median, copy_best)
     same = back.read_bytes() == src.read_bytes()
     print(f"  round trip byte-identical: {same}; netCDF size {nc.stat().st_size:,} bytes")
@@ -137,9 +126,9 @@ def main(argv=None):
 
         exr = work / "t.exr"
         print()
-        best, median = timeit(lambda: save(table, exr), args.repeat)
+        best, median, _ = timeit(lambda: save(table, exr), args.repeat)
         report("write EXR (180 parts, float32)", best, median, c_best)
-        best, median = timeit(lambda: brdftab.open(exr).values, args.repeat)
+        best, median, _ = timeit(lambda: brdftab.open(exr).values, args.repeat)
         report("read EXR", best, median, c_best)
         print(f"EXR size {exr.stat().st_size:,} bytes")
     print(f"\nbyte-identical round trips: {'PASS' if ok else 'FAIL'}")

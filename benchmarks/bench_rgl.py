@@ -25,10 +25,8 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -37,17 +35,8 @@ import brdftab
 from brdftab.formats import rgl
 from brdftab.formats._marginal2d import Marginal2D
 from brdftab.formats._tensor import encode_tensor
+from _timing import timeit  # benchmarks/ is on sys.path when run as a script
 
-
-def timeit(fn, repeat):
-    """Warm up once, then time ``repeat`` calls; returns (best, median, list of times)."""
-    fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), statistics.median(times), times
 
 
 def report(label, best, median, extra=""):

@@ -25,28 +25,16 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import statistics
 import sys
-import time
 import tracemalloc
 
 import numpy as np
 
 import brdftab
 from brdftab.grids import merl_grid
+from _timing import GOLD, timeit  # benchmarks/ is on sys.path when run as a script
 
-GOLD = dict(n=[0.143119, 0.374957, 1.44248], k=[3.98316, 2.38572, 1.60322])
 
-
-def timeit(fn, repeat):
-    """Warm up once, then time ``repeat`` calls; returns (best, median, list of times)."""
-    fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times), statistics.median(times), times
 
 
 def peak_extra_bytes(fn):
