@@ -187,6 +187,9 @@ class Table(BRDF):
     def describe(self) -> str:
         return f"table of {self.name} on {self.grid.describe()}"
 
+    def _eval_slab(self, wi, wo, i0):
+        return _slab_eval(self, wi, wo, i0)
+
     def _interp_data(self):
         """``(values, valid)`` used for interpolation (see :func:`_horizon_ghosts`); cached."""
         cached = getattr(self, "_interp", None)
@@ -207,8 +210,11 @@ class Table(BRDF):
 
     def _eval(self, wi, wo, lam, n):
         idx, outside = self.grid.locate(wi, wo, isotropic=self.isotropic)
-        values, valid = self._interp_data()
-        out = _multilinear(values, idx, self.grid.axes, valid)
+        if self._values is None and self.nbytes > SLAB_EVAL_BYTES and self.grid.axes[0].period is None:
+            out = self._eval_slab(wi, wo, idx[0])
+        else:
+            values, valid = self._interp_data()
+            out = _multilinear(values, idx, self.grid.axes, valid)
         if outside.any() and self._outside != "clamp":
             if self._outside == "raise":
                 raise BrdftabError(f"{int(outside.sum())} direction pair(s) outside the domain of the {self.describe()}"
@@ -297,6 +303,35 @@ def _shifted(mask, step, axis):
         src[axis], dst[axis] = slice(-step, n), slice(0, n + step)
     out[tuple(dst)] = mask[tuple(src)]
     return out
+
+
+#: A table on disk larger than this is evaluated from the slab of its first axis that the
+#: queries need, not loaded whole.
+SLAB_EVAL_BYTES = 256 << 20
+#: Nodes of margin on each side of a slab (the horizon ghosts look three nodes back).
+SLAB_MARGIN = 4
+
+
+def _slab_eval(table, wi, wo, i0):
+    """Evaluate a table that is not loaded from the slab ``[min(i0), max(i0)]`` of its first
+    axis (plus a margin), read from disk; refuses honestly when the slab would not fit."""
+    n = len(table.grid.axes[0])
+    finite = np.isfinite(i0)
+    lo = int(max(0, np.floor(i0[finite].min()) - SLAB_MARGIN)) if finite.any() else 0
+    hi = int(min(n, np.ceil(i0[finite].max()) + SLAB_MARGIN + 1)) if finite.any() else min(n, 1)
+    per = table.nbytes / max(1, n)
+    check_memory(per * (hi - lo) * 3, f"evaluating {hi - lo} of {n} {table.grid.axes[0].name} slabs of the "
+                 f"{table.describe()}", peak=1.0)
+    slab = np.asarray(table._var[lo:hi].values)
+    grid = table.grid.sliced(lo, hi)
+    miss = _missing_mask(slab, table._var.attrs)
+    above = grid.node_above_horizon()
+    values, ok = _horizon_ghosts(slab, above, grid, miss) if not above.all() else (slab, above)
+    valid = np.broadcast_to(ok[..., None], values.shape)
+    if miss is not None:
+        valid = valid & ~miss
+    idx, _ = grid.locate(wi, wo, isotropic=table.isotropic)
+    return _multilinear(values, idx, grid.axes, None if valid.all() else valid)
 
 
 def _missing_mask(values, attrs):

@@ -303,3 +303,38 @@ def test_conforming_file_without_optional_attributes_is_read(tmp_path):
     ds.to_netcdf(tmp_path / "nofold.nc")
     with pytest.raises(FormatError, match="phi_d_fold"):
         brdftab.open(tmp_path / "nofold.nc")
+
+
+def test_eval_on_a_huge_declared_table_reads_a_slab(tmp_path):
+    path = _huge(tmp_path / "huge.nc")  # 777 MB declared, one θh slab written (ones)
+    code = ("import resource, subprocess, sys; "
+            f"p = subprocess.run([sys.executable, '-m', 'brdftab', 'eval', {str(path)!r}, '--wi-deg', '30,0', "
+            "'--wo-deg', '30,180', '--json'], capture_output=True, text=True); "
+            "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); print(p.returncode); "
+            "print(p.stdout.strip() or p.stderr.strip())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.splitlines()
+    peak_kib, rc = int(out[0]), int(out[1])
+    assert rc == 0, out
+    import json
+
+    # the mirror pair sits at θh = 0: the written slab (1.0); the unwritten neighbours are missing
+    assert json.loads(out[2])["channels"]["R"] == pytest.approx(1.0, rel=1e-12)
+    assert peak_kib < 450 * 1024, f"eval used {peak_kib / 1024:.0f} MiB for a 777 MB declared table"
+
+
+def test_slab_evaluation_equals_whole_table_evaluation(tmp_path, monkeypatch):
+    from brdftab import table as table_mod
+
+    path = tmp_path / "t.nc"
+    brdftab.save(tabulate(GGX, merl_grid(), progress=False), path)
+    rng = np.random.default_rng(4)
+    wi = sph_to_vec(np.arccos(rng.uniform(0.05, 1, 2000)), rng.uniform(0, 6.3, 2000))
+    wo = sph_to_vec(np.arccos(rng.uniform(0.05, 1, 2000)), rng.uniform(0, 6.3, 2000))
+    whole = brdftab.open(path).eval(wi, wo)
+    monkeypatch.setattr(table_mod, "SLAB_EVAL_BYTES", 1 << 20)
+    t = brdftab.open(path)
+    near = wi[:, 2] > 0.9  # queries near the normal use few θh slabs
+    got = t.eval(wi[near], wo[near])
+    assert t._values is None  # never loaded whole
+    np.testing.assert_allclose(got, whole[near], rtol=1e-12)
+    np.testing.assert_allclose(t.eval(wi, wo), whole, rtol=1e-12)
