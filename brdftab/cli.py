@@ -434,6 +434,8 @@ def info(file, as_json):
         sha = str(attrs.get("spec_sha256") or "")
         name = attrs.get("spec_file") or "(unnamed)"
         click.echo(f"  spec file:   {name}" + (f"  (sha256 {sha[:16]}...)" if sha else ""))
+    if attrs.get("material"):
+        click.echo(f"  material:    {attrs['material']}")
     click.echo(f"  model:       {attrs.get('model', table.name)}")
     for line in _parameter_lines(attrs.get("model"), attrs.get("parameters"), 4):
         click.echo(line)

@@ -23,7 +23,6 @@ format). The steps:
 
 from __future__ import annotations
 
-import math
 import sys
 import time
 import warnings
@@ -34,7 +33,7 @@ import numpy as np
 
 from . import formats
 from ._atomic import check_target, claim, terminate_as_interrupt, write_progress
-from .brdf import BRDF
+from .models.combinators import Average
 from .errors import BrdftabError, ParameterError, ValidationError
 from .grids import Grid
 
@@ -198,41 +197,6 @@ _FOLD_TEXT = {
 }
 
 
-class _Folded(BRDF):
-    """The mean of a BRDF over rotations about the normal and/or over swapping wi and wo."""
-
-    def __init__(self, brdf, rotations: int = 0, swap: bool = False, reciprocal: bool | None = None):
-        self.brdf = brdf
-        self.rotations = rotations
-        self.swap = swap
-        self.name = brdf.name
-        self.layout = brdf.layout
-        self.isotropic = True if rotations else brdf.isotropic
-        self.reciprocal = True if swap else (brdf.reciprocal if reciprocal is None else reciprocal)
-
-    @property
-    def parameters(self):
-        return self.brdf.parameters
-
-    def _eval(self, wi, wo, lam, n):
-        if not self.rotations and not self.swap:
-            return self.brdf.eval(wi, wo, lam)
-        angles = 2.0 * np.pi * np.arange(self.rotations) / self.rotations if self.rotations else [0.0]
-        acc = np.zeros((wi.shape[0], n))
-        count = np.zeros((wi.shape[0], n))
-        for a in angles:
-            c, s = math.cos(a), math.sin(a)
-            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            ri, ro = wi @ rot.T, wo @ rot.T
-            for x, y in ((ri, ro), (ro, ri)) if self.swap else ((ri, ro),):
-                f = self.brdf.eval(x, y, lam)
-                ok = np.isfinite(f)
-                acc += np.where(ok, f, 0.0)
-                count += ok
-        with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(count > 0, acc / np.maximum(count, 1), np.nan)
-
-
 def _rotations(grid) -> int:
     """Rotations about the normal to average over: one per node of a uniform periodic φh axis
     (the mean of the table's interpolant over φh is then exact), else :data:`PHI_H_SAMPLES`."""
@@ -394,8 +358,10 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
             # a table already folded by reciprocity holds reciprocal data whatever it declares
             src_fold = getattr(src_grid, "phi_d_fold", "none")
             if reasons or ("reciprocity" in src_fold and not table.reciprocal):
-                brdf = _Folded(table, _rotations(src_grid) if "azimuth" in reasons else 0, "reciprocity" in reasons,
-                               reciprocal=True if "reciprocity" in src_fold else None)
+                brdf = Average(term=table, rotations=_rotations(src_grid) if "azimuth" in reasons else 0,
+                               swap="reciprocity" in reasons)
+                if "reciprocity" in src_fold:  # a table folded by reciprocity holds reciprocal data
+                    brdf.reciprocal = True
         payload = brdf
         if fmt.prepare is None and out_grid is not None and resampled:
             payload = _tabulate(brdf, out_grid, wavelengths, table, source, progress)

@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ..brdf import BRDF
+from ..models.combinators import Average
 from ..channels import Layout
 from ..errors import FormatError, ParameterError
 from ..grids import merl_grid
@@ -117,7 +117,8 @@ def _table_from_raw(raw, name: str):
             diffs.append(d if d.any() else None)
     provenance = {
         "title": f"MERL BRDF {name}",
-        "model": Path(name).stem or "merl",
+        "model": "unknown",  # a MERL file names no model: it is data (measured or tabulated elsewhere)
+        "material": Path(name).stem,
         "parameters": "{}",
         "isotropic": 1,
         "reciprocal": 1,
@@ -262,10 +263,10 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
         raise FormatError(f"MERL files fold phi_d by reciprocity (phi_d ~ phi_d + pi) and '{brdf.name}' is not "
                           "reciprocal; pass symmetrize = true to write (f(wi, wo) + f(wo, wi)) / 2")
     if n_phi_h:
-        source = _PhiHAverage(source, n_phi_h)
+        source = Average(term=source, rotations=n_phi_h)
         provenance["phi_h_averaged"] = n_phi_h
     if symmetrize:
-        source = _Symmetrized(source)
+        source = Average(term=source, swap=True)
         provenance["symmetrized"] = 1
     table = _as_rgb(tabulate(source, target, provenance=provenance or None))
     missing = None
@@ -305,49 +306,6 @@ def _as_rgb(table):
         channel=xr.Variable(("channel",), np.array(RGB, dtype=object), attrs=dict(ds["channel"].attrs)))
     out["brdf"] = rgb
     return Table(out)
-
-
-class _PhiHAverage(BRDF):
-    """Mean of a BRDF over rotations about the normal (φh), on ``n`` equally spaced angles."""
-
-    def __init__(self, brdf, n: int):
-        self.brdf = brdf
-        self.n = n
-        self.name = brdf.name
-        self.layout = brdf.layout
-        self.isotropic = True
-        self.reciprocal = brdf.reciprocal
-
-    @property
-    def parameters(self):
-        return self.brdf.parameters
-
-    def _eval(self, wi, wo, lam, n):
-        acc = np.zeros((wi.shape[0], n))
-        for k in range(self.n):
-            a = 2.0 * np.pi * k / self.n
-            c, s = np.cos(a), np.sin(a)
-            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
-            acc += self.brdf.eval(wi @ rot.T, wo @ rot.T, lam)
-        return acc / self.n
-
-
-class _Symmetrized(BRDF):
-    """The reciprocal part of a BRDF: ``(f(wi, wo) + f(wo, wi)) / 2``."""
-
-    def __init__(self, brdf):
-        self.brdf = brdf
-        self.name = brdf.name
-        self.layout = brdf.layout
-        self.isotropic = brdf.isotropic
-        self.reciprocal = True
-
-    @property
-    def parameters(self):
-        return self.brdf.parameters
-
-    def _eval(self, wi, wo, lam, n):
-        return 0.5 * (self.brdf.eval(wi, wo, lam) + self.brdf.eval(wo, wi, lam))
 
 
 register(FileFormat(

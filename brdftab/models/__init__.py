@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from ..errors import BrdftabError
 from ..params import suggest
-from .combinators import Scale, Sum
+from .combinators import Average, Scale, Sum
 from .lambert import Lambert
 from .microfacet import Microfacet
 
@@ -27,7 +27,7 @@ def register(cls):
     return cls
 
 
-for _cls in (Lambert, Microfacet, Sum, Scale):
+for _cls in (Lambert, Microfacet, Sum, Scale, Average):
     register(_cls)
 
 

@@ -1,7 +1,10 @@
 """Combinators: build a BRDF out of other BRDFs.
 
 * ``sum`` — f = Σ f_k (e.g. a diffuse base plus a specular lobe);
-* ``scale`` — f = s · f_term with s per channel or spectral.
+* ``scale`` — f = s · f_term with s per channel or spectral;
+* ``average`` — the mean of a term over rotations about the normal (its isotropic part)
+  and/or over swapping wi and wo (its reciprocal part), for grids and formats that store
+  only isotropic or reciprocal BRDFs (MERL).
 
 Channels combine as in :func:`brdftab.channels.combine_layouts`: grey terms broadcast to the
 others; RGB and spectral terms cannot be mixed. A combination is isotropic (reciprocal) when
@@ -19,7 +22,7 @@ from ..brdf import Model
 from ..channels import combine_layouts
 from ..params import Param
 
-__all__ = ["Sum", "Scale"]
+__all__ = ["Sum", "Scale", "Average"]
 
 
 class Sum(Model):
@@ -70,3 +73,45 @@ class Scale(Model):
 
     def _eval(self, wi, wo, lam, n):
         return self.term._eval(wi, wo, lam, n) * np.asarray(self.factor.at(lam, n))[None, :]
+
+
+class Average(Model):
+    name = "average"
+    summary = "Mean of a term over rotations about the normal and/or over swapping wi and wo."
+    reference = "Nicodemus1977"
+    params = (
+        Param("term", "brdf", "The BRDF to average ([model.term] table in a spec).", units=""),
+        Param("rotations", "int", "Rotations about the normal, equally spaced (0: none).", default=0, minimum=0,
+              maximum=3600),
+        Param("swap", "bool", "Also average f(wi, wo) with f(wo, wi) (the reciprocal part).", default=False),
+    )
+
+    def _setup(self, term, rotations, swap):
+        self.term = term
+        self.rotations = rotations
+        self.swap = swap
+        self.layout = term.layout
+        # n rotations give n-fold symmetry: isotropic as far as a tabulation at φh = 0 sees
+        self.isotropic = term.isotropic or rotations > 1
+        self.reciprocal = term.reciprocal or swap
+        # the swapped half of a non-reciprocal term need not conserve energy
+        self.energy_conserving = term.energy_conserving and (term.reciprocal or not swap)
+
+    @property
+    def lobe_width(self):
+        return self.term.lobe_width
+
+    def _eval(self, wi, wo, lam, n):
+        angles = 2.0 * np.pi * np.arange(self.rotations) / self.rotations if self.rotations > 1 else [0.0]
+        acc = np.zeros((wi.shape[0], n))
+        count = np.zeros((wi.shape[0], n))
+        for a in angles:
+            c, s = np.cos(a), np.sin(a)
+            rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]])
+            ri, ro = wi @ rot.T, wo @ rot.T
+            for x, y in ((ri, ro), (ro, ri)) if self.swap else ((ri, ro),):
+                f = self.term.eval(x, y, lam)
+                ok = np.isfinite(f)  # a table's NaN (missing, outside) is left out of the mean
+                acc += np.where(ok, f, 0.0)
+                count += ok
+        return np.where(count > 0, acc / np.maximum(count, 1), np.nan)
