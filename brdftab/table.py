@@ -388,12 +388,7 @@ def _multilinear(values, idx, axes, valid=None):
     if vflat is not None:
         plain = np.zeros((m, c))
         den = np.zeros((m, c))
-    for corner in itertools.product((0, 1), repeat=len(axes)):
-        w = np.ones(m)
-        pos = np.zeros(m, dtype=np.intp)
-        for a, bit in enumerate(corner):
-            w *= fracs[a] if bit else (1.0 - fracs[a])
-            pos += (highs[a] if bit else lows[a]) * strides[a]
+    for w, pos in _corners(lows, highs, fracs, strides, m):
         if not w.any():
             continue
         v = flat[pos]
@@ -413,21 +408,23 @@ def _multilinear(values, idx, axes, valid=None):
     if none.any():
         # no valid corner: all below the horizon (stored zeros) or some missing (NaN)
         res = np.where(none, plain, res)
-        res[none & ~_all_horizon(flat, vflat, lows, highs, fracs, strides, m, c)] = np.nan
+        # True where every weighted corner is a below-horizon node (stored 0, not missing)
+        horizon = np.ones((m, c), bool)
+        for w, pos in _corners(lows, highs, fracs, strides, m):
+            horizon &= (w[:, None] == 0) | (flat[pos] == 0)
+        res[none & ~horizon] = np.nan
     return res
 
 
-def _all_horizon(flat, vflat, lows, highs, fracs, strides, m, c):
-    """True where every weighted corner is a below-horizon node (stored 0, not missing)."""
-    ok = np.ones((m, c), bool)
+def _corners(lows, highs, fracs, strides, m):
+    """``(weight, flat position)`` of each corner of the cells holding ``m`` queries."""
     for corner in itertools.product((0, 1), repeat=len(lows)):
         w = np.ones(m)
         pos = np.zeros(m, dtype=np.intp)
         for a, bit in enumerate(corner):
             w *= fracs[a] if bit else (1.0 - fracs[a])
             pos += (highs[a] if bit else lows[a]) * strides[a]
-        ok &= (w[:, None] == 0) | (flat[pos] == 0)
-    return ok
+        yield w, pos
 
 
 def _interp_last(out, stored, lam):
