@@ -20,6 +20,8 @@ from __future__ import annotations
 import drjit as dr
 import mitsuba as mi
 import numpy as np
+from _directions import direction_pairs as shared_pairs
+from _directions import f32, upper
 import pytest
 from scipy.integrate import quad
 
@@ -44,46 +46,9 @@ SMALL = 1e-6           # below this Mitsuba value compare absolutely
 # helpers
 
 
-def _f32(a):
-    """Round to float32 and back: the values Mitsuba actually receives."""
-    return np.asarray(a, np.float32).astype(np.float64)
-
-
-def _upper(rng, n, min_cos=MIN_COS):
-    """``n`` directions with cosθ uniform in [min_cos, 1] and uniform azimuth."""
-    c = rng.uniform(min_cos, 1.0, n)
-    phi = rng.uniform(-np.pi, np.pi, n)
-    s = np.sqrt(1.0 - c * c)
-    return np.stack([s * np.cos(phi), s * np.sin(phi), c], axis=-1)
-
-
 def direction_pairs(seed, alpha_x, alpha_y, n=N_PAIRS):
-    """Seeded (wi, wo) pairs, both with cosθ >= MIN_COS, float32-exact.
-
-    Half are independent uniform pairs (tails of D), half put wo near the mirror direction
-    of wi by reflecting about a normal drawn with slopes ~ 1.5·α·N(0, 1) (the peak of D).
-    """
-    rng = np.random.default_rng(seed)
-    n_uniform = n // 2
-    wi_u, wo_u = _upper(rng, n_uniform), _upper(rng, n_uniform)
-    wi_s, wo_s = [], []
-    need = n - n_uniform
-    while need > 0:
-        wi = _upper(rng, 4 * need)
-        sx = 1.5 * alpha_x * rng.normal(size=wi.shape[0])
-        sy = 1.5 * alpha_y * rng.normal(size=wi.shape[0])
-        m = np.stack([-sx, -sy, np.ones_like(sx)], axis=-1)
-        m /= np.linalg.norm(m, axis=-1, keepdims=True)
-        d = np.sum(wi * m, axis=-1, keepdims=True)
-        wo = 2.0 * d * m - wi
-        ok = (wo[:, 2] >= MIN_COS) & (d[:, 0] > 0)
-        wi_s.append(wi[ok][:need])
-        wo_s.append(wo[ok][:need])
-        need -= min(need, int(ok.sum()))
-    wi = np.concatenate([wi_u] + wi_s)
-    wo = np.concatenate([wo_u] + wo_s)
-    wi, wo = _f32(wi), _f32(wo)
-    assert wi.shape == wo.shape == (n, 3)
+    """Seeded pairs with cosθ >= MIN_COS, half near the mirror direction (see _directions)."""
+    wi, wo = shared_pairs(seed, alpha_x, alpha_y, n, MIN_COS)
     assert np.all(wi[:, 2] >= MIN_COS - 1e-6) and np.all(wo[:, 2] >= MIN_COS - 1e-6)
     return wi, wo
 
@@ -198,7 +163,7 @@ def test_roughconductor_ggx_anisotropic(alpha_u, alpha_v):
 
 def test_below_horizon_is_zero_in_both():
     rng = np.random.default_rng(21)
-    wi, wo = _f32(_upper(rng, 60)), _f32(_upper(rng, 60))
+    wi, wo = f32(upper(rng, 60, MIN_COS)), f32(upper(rng, 60, MIN_COS))
     wo_below = wo * np.array([1.0, 1.0, -1.0])
     wi_below = wi * np.array([1.0, 1.0, -1.0])
     rc = mitsuba_roughconductor("ggx", 0.3, 0.3, **GOLD)
@@ -281,9 +246,9 @@ def test_smith_lambda_exact_by_quadrature():
 
 def test_fresnel_conductor_vs_mitsuba():
     rng = np.random.default_rng(3)
-    cos = _f32(np.concatenate([np.linspace(0.0, 1.0, 101), rng.uniform(0.0, 1.0, 200)]))
+    cos = f32(np.concatenate([np.linspace(0.0, 1.0, 101), rng.uniform(0.0, 1.0, 200)]))
     indices = [(n, k) for m in METALS.values() for n, k in zip(m["n"], m["k"])]
-    indices += [(float(n), float(k)) for n, k in zip(_f32(rng.uniform(0.1, 3.0, 6)), _f32(rng.uniform(0.0, 8.0, 6)))]
+    indices += [(float(n), float(k)) for n, k in zip(f32(rng.uniform(0.1, 3.0, 6)), f32(rng.uniform(0.0, 8.0, 6)))]
     indices += [(1.5, 0.0), (0.2, 3.0)]
     for n, k in indices:
         n, k = float(np.float32(n)), float(np.float32(k))
@@ -294,7 +259,7 @@ def test_fresnel_conductor_vs_mitsuba():
 
 
 def test_fresnel_conductor_broadcasts_per_channel():
-    cos = _f32(np.linspace(0.05, 1.0, 50))
+    cos = f32(np.linspace(0.05, 1.0, 50))
     ours = fresnel_conductor(cos[:, None], np.array(GOLD["n"]), np.array(GOLD["k"]))
     assert ours.shape == (50, 3)
     for j, (n, k) in enumerate(zip(GOLD["n"], GOLD["k"])):
@@ -306,7 +271,7 @@ def test_fresnel_conductor_broadcasts_per_channel():
 def test_fresnel_dielectric_vs_mitsuba(eta):
     """Real index, including total internal reflection for eta < 1."""
     eta = float(np.float32(eta))
-    cos = _f32(np.linspace(0.0, 1.0, 201))
+    cos = f32(np.linspace(0.0, 1.0, 201))
     ref = np.array([mi.fresnel(float(c), eta)[0] for c in cos])
     ours = fresnel_dielectric(cos, eta)
     np.testing.assert_allclose(ours, ref, rtol=1e-5, atol=1e-7)
@@ -319,7 +284,7 @@ def _normals(rng, n, alpha_x, alpha_y):
     sx = 2.0 * alpha_x * rng.normal(size=n)
     sy = 2.0 * alpha_y * rng.normal(size=n)
     m = np.stack([-sx, -sy, np.ones(n)], axis=-1)
-    return _f32(m / np.linalg.norm(m, axis=-1, keepdims=True))
+    return f32(m / np.linalg.norm(m, axis=-1, keepdims=True))
 
 
 @pytest.mark.parametrize("kind", ["ggx", "beckmann"])
@@ -352,7 +317,7 @@ def test_distribution_vs_mitsuba(kind, alpha_x, alpha_y):
 @pytest.mark.parametrize("alpha_x, alpha_y", [(0.05, 0.05), (0.3, 0.3), (0.8, 0.8), (0.1, 0.4)])
 def test_smith_g1_vs_mitsuba(alpha_x, alpha_y):
     rng = np.random.default_rng(5)
-    w = _f32(_upper(rng, 300, min_cos=0.02))
+    w = f32(upper(rng, 300, 0.02))
     normal = mi.Vector3f(0.0, 0.0, 1.0)
     for mtype, lam, rtol in ((mi.MicrofacetType.GGX, lambda_ggx, 1e-5),
                              (mi.MicrofacetType.Beckmann, lambda_beckmann, 3.6e-3)):

@@ -22,6 +22,8 @@ import struct
 
 import mitsuba as mi
 import numpy as np
+from _directions import direction_pairs as shared_pairs
+from _directions import f32 as _f32
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -58,37 +60,10 @@ def recipe_model():
     ])
 
 
-def _f32(a):
-    return np.asarray(a, np.float32).astype(np.float64)
-
-
-def _upper(rng, n, min_cos=MIN_COS):
-    c = rng.uniform(min_cos, 1.0, n)
-    phi = rng.uniform(-np.pi, np.pi, n)
-    s = np.sqrt(1.0 - c * c)
-    return np.stack([s * np.cos(phi), s * np.sin(phi), c], axis=-1)
-
-
 def direction_pairs(seed, alpha_x, alpha_y, n=N_PAIRS):
-    """Half independent uniform pairs, half with wo near the mirror direction of wi (reflected
-    about normals with slopes ~ 1.5 α N(0, 1)); all with cosθ >= MIN_COS, float32-exact."""
-    rng = np.random.default_rng(seed)
-    wi_u, wo_u = _upper(rng, n // 2), _upper(rng, n // 2)
-    wi_s, wo_s, need = [], [], n - n // 2
-    while need > 0:
-        wi = _upper(rng, 4 * need)
-        m = np.stack([-1.5 * alpha_x * rng.normal(size=wi.shape[0]), -1.5 * alpha_y * rng.normal(size=wi.shape[0]),
-                      np.ones(wi.shape[0])], axis=-1)
-        m /= np.linalg.norm(m, axis=-1, keepdims=True)
-        d = np.sum(wi * m, axis=-1, keepdims=True)
-        wo = 2.0 * d * m - wi
-        ok = (wo[:, 2] >= MIN_COS) & (d[:, 0] > 0)
-        wi_s.append(wi[ok][:need])
-        wo_s.append(wo[ok][:need])
-        need -= min(need, int(ok.sum()))
-    wi, wo = _f32(np.concatenate([wi_u] + wi_s)), _f32(np.concatenate([wo_u] + wo_s))
-    # float32 rounding leaves them unit to ~1e-7; renormalize in float64 so both libraries agree
-    return wi / np.linalg.norm(wi, axis=-1, keepdims=True), wo / np.linalg.norm(wo, axis=-1, keepdims=True)
+    """Seeded pairs with cosθ >= MIN_COS, half near the mirror direction (see _directions);
+    renormalized after float32 rounding so both libraries see the same unit vectors."""
+    return shared_pairs(seed, alpha_x, alpha_y, n, MIN_COS, renormalize=True)
 
 
 def mitsuba_eval(path, wi, wo, wavelengths=None):
