@@ -70,6 +70,12 @@ class BRDF:
         return None
 
     @property
+    def lobe_axes(self) -> tuple | None:
+        """Widths of an anisotropic lobe along the surface's x and y axes (e.g. a microfacet's
+        α_x, α_y), or None; lets quadrature follow elongated lobes."""
+        return None
+
+    @property
     def channels(self):
         """Channel names, or None for a spectral BRDF."""
         return self.layout.channels

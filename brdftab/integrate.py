@@ -23,6 +23,12 @@ Against converged references for GGX and Beckmann lobes of α = 0.002 … 0.5 th
 ≤ 1e-5 for θi ≤ 60°, ≤ 1.1e-4 up to 85° and ≤ 9e-4 at 89°, with 700–1600 nodes per
 incidence direction (6 nodes per panel).
 
+An anisotropic lobe (a BRDF declaring ``lobe_axes = (a_x, a_y)``, e.g. a microfacet with α_x ≠
+α_y) is long and thin in half-vector azimuth: the azimuth is then warped as the polar angle
+of the stretched point (a_x cos χ, a_y sin χ) with χ on 16 equal panels, which crowds the
+nodes along the lobe's long axis (GGX α = 0.716 × 3e-5 and 0.05 × 0.5 agree with Monte Carlo
+references to their error bars).
+
 The lobe width is measured (:func:`lobe_width`): the half vector is tilted away from the
 normal towards four azimuths at 33 geometric offsets (1e-4 … 1 rad); the width is the
 smallest offset at which the integrand falls below a tenth of its value at the mirror
@@ -66,6 +72,10 @@ DEFAULT_NODES = 6
 DEFAULT_RATIO = 2.0
 #: Equal panels in the half-vector azimuth.
 PHI_PANELS = 4
+#: Lobes whose axis widths differ by more than this factor get the anisotropic azimuth warp,
+#: on this many equal panels.
+ANISOTROPY = 1.5
+ANISO_PHI_PANELS = 16
 #: Offsets [rad] at which the lobe width is probed.
 PROBE_OFFSETS = np.geomspace(1e-4, 1.0, 33)
 MIN_WIDTH = 1e-4
@@ -177,7 +187,7 @@ def _phi_edges(panels):
 
 
 def outgoing_rule(theta_i: float, phi_i: float = 0.0, width: float = MAX_WIDTH, *, nodes: int = DEFAULT_NODES,
-                  ratio: float = DEFAULT_RATIO):
+                  ratio: float = DEFAULT_RATIO, axes=None):
     """Quadrature over the outgoing hemisphere, in half-vector space about the normal.
 
     ``width`` [rad] is the lobe's width in half-vector space (see :func:`lobe_width`).
@@ -186,12 +196,24 @@ def outgoing_rule(theta_i: float, phi_i: float = 0.0, width: float = MAX_WIDTH, 
     in θh graded from width/8 by ``ratio`` up to the horizon cut θh_max(φh) (where the mirrored
     wo reaches the horizon, a panel edge), in φh :data:`PHI_PANELS` equal panels.
     dωo = 4 (wo·h) dωh.
+
+    ``axes = (a_x, a_y)``, the widths of an anisotropic lobe along the surface's x and y axes
+    (e.g. a microfacet's α_x, α_y): the half-vector azimuth is then warped as the polar angle
+    of the stretched point (a_x cos χ, a_y sin χ), χ on equal panels, so the nodes crowd where
+    the elliptical lobe is long and thin (at radius r its azimuthal width is ~ a_min / r).
     """
     theta_i = float(theta_i)
     w0 = float(np.clip(width, MIN_WIDTH, MAX_WIDTH)) / 8.0
     ladder = w0 * ratio ** np.arange(int(np.ceil(np.log(HALF_PI / w0) / np.log(ratio))) + 1)
     ladder = ladder[ladder < HALF_PI]
-    psi, wpsi = _gl_panels(_phi_edges(PHI_PANELS), nodes)                # [Np]
+    if axes is not None and max(axes) > ANISOTROPY * min(axes):
+        ax, ay = (float(a) for a in axes)
+        chi, wchi = _gl_panels(_phi_edges(ANISO_PHI_PANELS), nodes)
+        c, s = np.cos(chi), np.sin(chi)
+        psi = np.arctan2(ay * s, ax * c) - float(phi_i)                    # relative to φi
+        wpsi = wchi * ax * ay / (ax * ax * c * c + ay * ay * s * s)         # dφh/dχ
+    else:
+        psi, wpsi = _gl_panels(_phi_edges(PHI_PANELS), nodes)            # [Np]
     tmax = _theta_h_max(theta_i, psi)                                     # [Np]
     edges = np.concatenate([np.zeros((psi.size, 1)), np.minimum(ladder[None, :], tmax[:, None]), tmax[:, None]],
                            axis=1)                                        # [Np, P + 1]
@@ -217,13 +239,14 @@ def _integrate(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
     widths = (lobe_widths(brdf, theta_i, phi_i, wavelengths) if width is None
               else np.broadcast_to(np.asarray(width, float), (m,)).copy())
     wi = sph_to_vec(theta_i, phi_i)
+    axes = getattr(brdf, "lobe_axes", None)
     a = c = None
     start = 0
     while start < m:
         rules, count = [], 0
         stop = start
         while stop < m and (count < BATCH or stop == start):
-            wo, w = outgoing_rule(theta_i[stop], phi_i[stop], widths[stop], nodes=nodes, ratio=ratio)
+            wo, w = outgoing_rule(theta_i[stop], phi_i[stop], widths[stop], nodes=nodes, ratio=ratio, axes=axes)
             keep = wo[:, 2] > _Z_MIN
             rules.append((wo[keep], w[keep] * wo[keep, 2]))
             count += int(keep.sum())

@@ -43,6 +43,12 @@ class Sum(Model):
         widths = [t.lobe_width for t in self.terms if t.lobe_width is not None]
         return min(widths) if widths else None
 
+    @property
+    def lobe_axes(self):
+        # the narrowest term's lobe decides where the nodes must be
+        terms = [t for t in self.terms if t.lobe_width is not None]
+        return min(terms, key=lambda t: t.lobe_width).lobe_axes if terms else None
+
     def _eval(self, wi, wo, lam, n):
         out = self.terms[0]._eval(wi, wo, lam, n)
         for t in self.terms[1:]:
@@ -70,6 +76,10 @@ class Scale(Model):
     @property
     def lobe_width(self):
         return self.term.lobe_width
+
+    @property
+    def lobe_axes(self):
+        return self.term.lobe_axes
 
     def _eval(self, wi, wo, lam, n):
         return self.term._eval(wi, wo, lam, n) * np.asarray(self.factor.at(lam, n))[None, :]
@@ -100,6 +110,10 @@ class Average(Model):
     @property
     def lobe_width(self):
         return self.term.lobe_width
+
+    @property
+    def lobe_axes(self):
+        return self.term.lobe_axes
 
     def _eval(self, wi, wo, lam, n):
         angles = 2.0 * np.pi * np.arange(self.rotations) / self.rotations if self.rotations > 1 else [0.0]

@@ -64,6 +64,10 @@ class Microfacet(Model):
     def lobe_width(self) -> float:
         return min(self.alpha_x, self.alpha_y)
 
+    @property
+    def lobe_axes(self):
+        return None if self.isotropic else (self.alpha_x, self.alpha_y)
+
     def ndf(self, h):
         """The normal distribution D(h) [sr⁻¹] at unit microfacet normals ``h[..., 3]`` (0 where h_z <= 0)."""
         return self.dist.D(np.asarray(h, float))
