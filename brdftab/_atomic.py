@@ -416,19 +416,18 @@ def _raise_terminated(signum, frame):
 @contextlib.contextmanager
 def terminate_as_interrupt():
     """Within the block, SIGTERM raises :class:`Terminated` so cleanup code runs."""
+    # Errors raised in the block must pass through untouched: no yield inside the try below.
+    previous = None
     try:
-        current = signal.getsignal(signal.SIGTERM)
-        if current is _raise_terminated:
-            yield
-            return
-        previous = signal.signal(signal.SIGTERM, _raise_terminated)
-    except ValueError:  # not in the main thread
-        yield
-        return
+        if signal.getsignal(signal.SIGTERM) is not _raise_terminated:
+            previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    except ValueError:  # not in the main thread: nothing to install
+        previous = None
     try:
         yield
     finally:
-        signal.signal(signal.SIGTERM, previous)
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 # --------------------------------------------------------------------------------------------

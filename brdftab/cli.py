@@ -292,7 +292,7 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
     click.echo(f"resampled: {result.source_grid or 'the input'} -> {grid_text_out}")
     d = result.difference
     if d is not None:
-        click.echo(f"resampling error: max relative difference {d.max_rel:.3g}, rms {d.rms_rel:.3g} "
+        click.echo(f"resampling error of f cosθi cosθo: rms relative {d.rms_rel:.3g}, max relative {d.max_rel:.3g} "
                    f"({d.points} check points, written table vs {'the averaged ' if result.folded else ''}input)")
     elif result.note:
         click.echo(f"resampling error: not computed ({result.note})")

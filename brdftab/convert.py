@@ -60,9 +60,12 @@ class InvalidSource(ValidationError):
 
 @dataclass
 class Difference:
-    """How far the written table is from the source: relative differences
-    ``|written − source| / max(|source|, 1e-6 · max|source|)`` over ``points`` check points
-    (pairs where either is NaN, i.e. outside a domain or missing, are left out)."""
+    """How far the written table is from the source, on the radiometric quantity f cosθi cosθo
+    (as the tabulation check measures it): ``rms_rel`` = sqrt(Σ (Δf μi μo)² / Σ (f μi μo)²) and
+    ``max_rel`` the largest |Δf| / f where f μi μo exceeds 1e-3 of its largest value, over
+    ``points`` check points (pairs where either is NaN — outside a domain or missing — are
+    left out). Weighting by the cosines keeps grazing pairs, where formats that store f·cos
+    (RGL) cannot resolve f, from dominating the figure."""
 
     max_rel: float
     rms_rel: float
@@ -282,10 +285,10 @@ def difference(source, written, n: int = CHECK_POINTS, seed: int = 0):
     ok = np.isfinite(f_s).all(-1) & np.isfinite(f_w).all(-1)
     if not ok.any():
         return None, "no check points inside both the source's and the written table's domains"
-    f_s, f_w = f_s[ok], f_w[ok]
-    floor = max(1e-6 * float(np.abs(f_s).max()), np.finfo(float).tiny)
-    rel = np.abs(f_w - f_s) / np.maximum(np.abs(f_s), floor)
-    return Difference(float(rel.max()), float(np.sqrt(np.mean(rel ** 2))), int(ok.sum()), int(n)), ""
+    from .checks.tabulation import compare
+
+    rms, top, _, count = compare(f_w[ok], f_s[ok], wi[ok, 2] * wo[ok, 2])
+    return Difference(top, rms, count, int(n)), ""
 
 
 # --------------------------------------------------------------------------------------------
@@ -336,6 +339,9 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
         except ParameterError as exc:
             key = f"{exc.key}: " if exc.key else ""
             raise BrdftabError(f"{target}: {key}{exc.detail}") from None
+        if out_grid is None and grid is not None:
+            raise BrdftabError(f"{target}: format {fmt.name} samples the source on its own parameterization; --grid "
+                               f"is not used (set its sampling with -o format options)")
         if out_grid is None and fmt.prepare is None:
             layout = getattr(getattr(table, "grid", None), "describe", lambda: "its own layout")()
             raise BrdftabError(f"{source} holds samples in {layout}, not on a grid {fmt.name} can store; choose "

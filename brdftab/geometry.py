@@ -119,11 +119,19 @@ def reflect(w, n):
 
 def as_directions(*dirs):
     """Broadcast direction arrays ``[..., 3]`` against each other as float64."""
-    arrs = [np.asarray(d, dtype=float) for d in dirs]
+    from .errors import ParameterError
+
+    try:
+        arrs = [np.asarray(d, dtype=float) for d in dirs]
+    except (TypeError, ValueError):
+        raise ParameterError("directions", "expected arrays of numbers with a trailing axis of length 3") from None
     for a in arrs:
         if a.ndim == 0 or a.shape[-1] != 3:
-            raise ValueError(f"directions must have a trailing axis of length 3, got shape {a.shape}")
-    return np.broadcast_arrays(*arrs)
+            raise ParameterError("directions", f"expected a trailing axis of length 3, got shape {a.shape}")
+    try:
+        return np.broadcast_arrays(*arrs)
+    except ValueError:
+        raise ParameterError("directions", f"shapes {[a.shape for a in arrs]} do not broadcast") from None
 
 
 def io_to_hd(wi, wo):

@@ -74,6 +74,8 @@ def register_kind(kind: Kind) -> Kind:
 
 
 def _bad(p, value, why=""):
+    if p.angle and isinstance(value, (int, float, np.number)) and not isinstance(value, bool):
+        value = float(np.degrees(value))  # angles reach Params in radians; users wrote degrees
     return ParameterError(p.name, f"expected {p.expected()}, got {_show(value)}{why}")
 
 
@@ -196,11 +198,14 @@ class Param:
             raise AssertionError(f"unknown parameter kind {self.kind!r}") from None
 
     def range_text(self) -> str:
+        """The accepted range, in the units a user writes (degrees for angles)."""
+        conv = (lambda x: float(np.degrees(x))) if self.angle else (lambda x: x)  # noqa: E731
+        unit = " deg" if self.angle else ""
         parts = []
         if self.minimum is not None:
-            parts.append(f"{'>' if self.exclusive_minimum else '>='} {_fmt(self.minimum)}")
+            parts.append(f"{'>' if self.exclusive_minimum else '>='} {_fmt(conv(self.minimum))}{unit}")
         if self.maximum is not None:
-            parts.append(f"<= {_fmt(self.maximum)}")
+            parts.append(f"<= {_fmt(conv(self.maximum))}{unit}")
         return " and ".join(parts)
 
     def expected(self) -> str:

@@ -61,7 +61,8 @@ def plan(spec: Spec, out_dir=None) -> list:
     for o in spec.outputs:
         fmt = formats.format_for(o.path, o.format)
         fmt.ensure_available()
-        grid = formats.target_grid(fmt, spec.grid, o.options)
+        with formats.naming(o.target(out_dir)):
+            grid = formats.target_grid(fmt, spec.grid, o.options)
         out.append(Planned(o.target(out_dir), fmt, dict(o.options), grid))
     return out
 
@@ -130,7 +131,12 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
                 continue
             where = ", ".join(str(j[0].target) for j in jobs if j[3] is checked)
             grid = getattr(checked, "grid", None)
-            reports[key] = guard(checked, layers, allow_invalid=allow, what=where, reference=spec.model,
+            # the spec's model, unless the format tabulated something derived from it (MERL's
+            # φh average or symmetrization): then the table's provenance names what it holds
+            made_from = getattr(checked, "ds", None)
+            derived = made_from is not None and made_from.attrs.get("model") != spec.model.name
+            reports[key] = guard(checked, layers, allow_invalid=allow, what=where,
+                                 reference=None if derived else spec.model,
                                  wavelengths=spec.wavelengths,
                                  subject=f"{spec.path.name} on {grid.describe() if grid is not None else 'its own grid'}")
         for m, options, payload, checked in jobs:

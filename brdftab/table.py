@@ -130,8 +130,17 @@ class Table(BRDF):
         """The stored samples, shape ``grid.shape + (n_channels,)`` (loaded on first use)."""
         if self._values is None:
             check_memory(self.nbytes, f"the table {self.describe()}", peak=1.0)
-            self._values = np.asarray(self._var.values)
+            self._values = self._read(self._var)
         return self._values
+
+    def _read(self, var) -> np.ndarray:
+        """Samples from disk; a damaged file is a :class:`FormatError` naming it."""
+        try:
+            return np.asarray(var.values)
+        except (RuntimeError, OSError, ValueError, KeyError) as exc:
+            src = self.ds.encoding.get("source", "the table file")
+            raise FormatError(f"{src}: damaged sample data ({' '.join(str(exc).split()) or type(exc).__name__})") \
+                from None
 
     @property
     def missing(self) -> np.ndarray | None:
@@ -152,7 +161,7 @@ class Table(BRDF):
         n0 = self._var.shape[0]
         per = max(1, int(max_bytes // max(1, self.nbytes // max(1, n0))))
         for i in range(0, n0, per):
-            yield np.asarray(self._var[i:i + per].values)
+            yield self._read(self._var[i:i + per])
 
     def statistics(self) -> dict:
         """Sample counts and range, streamed in slabs (a table need not fit in memory).
@@ -322,7 +331,7 @@ def _slab_eval(table, wi, wo, i0):
     per = table.nbytes / max(1, n)
     check_memory(per * (hi - lo) * 3, f"evaluating {hi - lo} of {n} {table.grid.axes[0].name} slabs of the "
                  f"{table.describe()}", peak=1.0)
-    slab = np.asarray(table._var[lo:hi].values)
+    slab = table._read(table._var[lo:hi])
     grid = table.grid.sliced(lo, hi)
     miss = _missing_mask(slab, table._var.attrs)
     above = grid.node_above_horizon()
@@ -335,6 +344,8 @@ def _slab_eval(table, wi, wo, i0):
 
 
 def _missing_mask(values, attrs):
+    """Missing samples: outside the CF ``valid_min``/``valid_max``/``valid_range``, or equal to
+    ``unwritten_value`` (netCDF's fill value in parts of a file that were never written)."""
     lo = attrs.get("valid_min")
     hi = attrs.get("valid_max")
     vr = attrs.get("valid_range")
@@ -342,8 +353,12 @@ def _missing_mask(values, attrs):
         lo, hi = np.asarray(vr, float).ravel()
     mask = None
     with np.errstate(invalid="ignore"):
+        unwritten = attrs.get("unwritten_value")
+        if unwritten is not None:
+            mask = values == np.asarray(unwritten, values.dtype).ravel()[0]
         if lo is not None:
-            mask = values < float(np.asarray(lo).ravel()[0])
+            m = values < float(np.asarray(lo).ravel()[0])
+            mask = m if mask is None else (mask | m)
         if hi is not None:
             m = values > float(np.asarray(hi).ravel()[0])
             mask = m if mask is None else (mask | m)

@@ -338,3 +338,97 @@ def test_slab_evaluation_equals_whole_table_evaluation(tmp_path, monkeypatch):
     assert t._values is None  # never loaded whole
     np.testing.assert_allclose(got, whole[near], rtol=1e-12)
     np.testing.assert_allclose(t.eval(wi, wo), whole, rtol=1e-12)
+
+
+# -- found by review after the formats and checks landed ----------------------------------------
+
+def _lambert_table(tmp_path, fill=None, name="lam.nc"):
+    t = tabulate(models.create("lambert", albedo=0.7), brdftab.grids.RusinkiewiczGrid(12, 12, 24), progress=False)
+    path = tmp_path / name
+    brdftab.save(t, path)
+    if fill is not None:
+        import xarray as xr
+
+        with xr.open_dataset(path) as ds:
+            ds = ds.load()
+        fill(ds)
+        ds.to_netcdf(path, mode="w")
+    return path
+
+
+def test_infinite_sample_fails_finite_and_is_not_missing(tmp_path):
+    from brdftab.checks import run_checks
+
+    def put_inf(ds):
+        ds["brdf"][5, 5, 5, 0] = np.inf
+
+    t = brdftab.open(_lambert_table(tmp_path, put_inf))
+    r = run_checks(t)
+    assert r.get("finite").status == "fail" and r.get("finite").data["inf"] == 1
+    assert t.missing is None
+
+
+def test_checks_skip_when_nothing_was_measured(tmp_path):
+    from brdftab.checks import run_checks
+
+    def all_missing(ds):
+        ds["brdf"][:] = -1.0
+        ds["brdf"].attrs["valid_min"] = 0.0
+
+    r = run_checks(brdftab.open(_lambert_table(tmp_path, all_missing)))
+    for name in ("energy", "albedo", "tabulation"):
+        assert r.get(name).status == "skip", (name, r.get(name).detail)
+
+
+def test_energy_excess_far_beyond_interpolation_fails(tmp_path):
+    from brdftab.checks import run_checks
+
+    def bright(ds):
+        ds["brdf"][:] = 2.0
+
+    r = run_checks(brdftab.open(_lambert_table(tmp_path, bright)), {"conventions": {"level": "warn"}})
+    assert r.get("energy").status == "fail" and r.get("energy").figure == pytest.approx(2 * np.pi, rel=1e-3)
+
+
+def test_errors_inside_the_run_keep_their_one_line(tmp_path):
+    src = _lambert_table(tmp_path)
+    p = subprocess.run([sys.executable, "-m", "brdftab", "convert", str(src), str(tmp_path / "o.bsdf"),
+                        "-o", "ndf=model"], capture_output=True, text=True)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "ndf" in p.stderr and "internal" not in p.stderr
+    assert not (tmp_path / "o.bsdf").exists()
+    p = subprocess.run([sys.executable, "-m", "brdftab", "convert", str(src), str(tmp_path / "o.bsdf"),
+                        "--grid", "merl"], capture_output=True, text=True)
+    assert p.returncode == 2 and "--grid is not used" in p.stderr
+
+
+def test_damaged_sample_data_is_a_format_error(tmp_path):
+    path = _lambert_table(tmp_path)
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 4000] = bytes(b ^ 0xFF for b in data[mid:mid + 4000])
+    path.write_bytes(bytes(data))
+    for cmd in (["info"], ["validate"], ["eval", "--wi-deg", "30,0", "--wo-deg", "30,180"]):
+        p = subprocess.run([sys.executable, "-m", "brdftab", cmd[0], str(path), *cmd[1:]], capture_output=True,
+                           text=True)
+        assert p.returncode == 2 and p.stderr.count("\n") == 1, (cmd, p.stderr)
+        assert "damaged" in p.stderr or "not a readable netCDF" in p.stderr, p.stderr
+
+
+def test_api_misuse_is_a_brdftab_error(tmp_path):
+    m = models.create("lambert", albedo=0.5)
+    brdftab.save(m, tmp_path / "a.nc", grid="merl")
+    brdftab.save(m, tmp_path / "b.nc", grid={"type": "rusinkiewicz", "n_theta_h": 4, "n_theta_d": 4, "n_phi_d": 4})
+    assert brdftab.open(tmp_path / "a.nc").grid.equals(merl_grid())
+    assert brdftab.open(tmp_path / "b.nc").grid.shape == (4, 4, 4)
+    with pytest.raises(BrdftabError, match="expected a BRDF"):
+        brdftab.save(np.zeros(3), tmp_path / "c.nc", grid="merl")
+    with pytest.raises(BrdftabError, match="grid must be"):
+        brdftab.save(m, tmp_path / "c.nc", grid=3)
+    with pytest.raises(ParameterError, match="trailing axis of length 3"):
+        m.eval(np.zeros((3, 2)), [0, 0, 1])
+
+
+def test_angle_thresholds_are_described_in_degrees(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "brdftab", "validate", str(_lambert_table(tmp_path)), "--set",
+                        "energy.theta_i_max_deg=95"], capture_output=True, text=True)
+    assert p.returncode == 2 and "89.99 deg, got 95" in p.stderr, p.stderr

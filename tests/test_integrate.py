@@ -215,3 +215,16 @@ def test_anisotropic_lobe_albedo_against_monte_carlo(ax, ay, theta_i_deg):
     ref, err = est.mean(), est.std() / np.sqrt(n)
     got = directional_albedo(m, th, 0.4)[0]
     assert abs(got - ref) < 4 * err + 2e-4, (got, ref, err)
+
+
+@pytest.mark.parametrize("axes", [(0.05, 0.5), (0.716, 3e-5), (0.5, 0.05)])
+def test_anisotropic_rule_integrates_a_lambertian_exactly(axes):
+    class Declares(BRDF):  # a Lambertian that declares an anisotropic lobe: the rule changes, the value must not
+        lobe_axes = axes
+        lobe_width = min(axes)
+
+        def _eval(self, wi, wo, lam, n):
+            return np.full((wi.shape[0], n), 0.5 / np.pi)
+
+    a = directional_albedo(Declares(), R([0.0, 60.0, 89.0])[:, None], (np.arange(8) * np.pi / 4)[None, :])
+    np.testing.assert_allclose(a, 0.5, rtol=1e-8)

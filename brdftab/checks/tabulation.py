@@ -96,6 +96,9 @@ class Tabulation(Check):
         ft = t.eval(wi, wo, lam)
         fm = model.eval(wi, wo, lam)
         e_rms, e_max, worst, n = compare(ft, fm, wi[:, 2] * wo[:, 2])
+        if n == 0:
+            return self.skip(f"no cell centre of the {t.grid.describe()} could be compared with {model.name} "
+                             "(every one is missing, outside the domain or below the horizon)")
         at, where = "", None
         if worst is not None:
             where = where_deg(wi[worst], wo[worst])

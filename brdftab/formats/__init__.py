@@ -189,8 +189,9 @@ def prepare(fmt: FileFormat, brdf, grid, options: dict | None = None):
 def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool = False, **options):
     """Write ``brdf`` to ``path`` atomically; returns what was written (usually the table).
 
-    ``grid`` None means the table's own grid (or the format's native grid); a table whose
-    grid equals the target grid is copied, anything else is tabulated on it first.
+    ``grid`` None means the table's own grid (or the format's native grid); a grid may also
+    be given by type name (``"merl"``) or as a ``[grid]`` table (a dict, angles in degrees).
+    A table whose grid equals the target grid is copied, anything else is tabulated on it.
     """
     fmt = format_for(path, format)
     fmt.ensure_available()
@@ -199,7 +200,20 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
     except BrdftabError as exc:
         raise BrdftabError(f"{path}: {exc}") from None
     check_target(path, overwrite)
+    from ..brdf import BRDF
+    from ..grids import Grid, grid_from_config
     from ..table import Table
+
+    if not isinstance(brdf, BRDF):
+        raise BrdftabError(f"{path}: expected a BRDF (a model or a table) to write, got {type(brdf).__name__}")
+    if isinstance(grid, str):
+        grid = {"type": grid}
+    if isinstance(grid, dict):
+        with naming(path):
+            grid = grid_from_config(grid)
+    elif grid is not None and not isinstance(grid, Grid):
+        raise BrdftabError(f"{path}: grid must be a Grid, a grid type such as 'merl' or a [grid] table (dict), "
+                           f"got {type(grid).__name__}")
 
     requested = grid if grid is not None else (brdf.grid if isinstance(brdf, Table) else None)
     with naming(path):

@@ -35,11 +35,11 @@ def read_netcdf(path):
         var = ds["brdf"]
         if var.dtype.kind == "f" and "_FillValue" not in var.encoding and "valid_max" not in var.attrs \
                 and "valid_range" not in var.attrs:
-            # Unwritten parts of a netCDF variable hold the library's default fill value;
-            # by the netCDF convention a positive fill value bounds the valid range.
+            # Unwritten parts of a netCDF variable hold the library's default fill value:
+            # samples equal to it are missing (any other value, +inf included, is data).
             fill = netCDF4.default_fillvals.get(var.dtype.str[1:])
             if fill is not None:
-                var.attrs["valid_max"] = np.nextafter(np.asarray(fill, var.dtype), np.asarray(0, var.dtype))
+                var.attrs["unwritten_value"] = np.asarray(fill, var.dtype)
     try:
         return Table(ds)
     except (KeyError, ValueError, TypeError, IndexError) as exc:
