@@ -432,3 +432,18 @@ def test_angle_thresholds_are_described_in_degrees(tmp_path):
     p = subprocess.run([sys.executable, "-m", "brdftab", "validate", str(_lambert_table(tmp_path)), "--set",
                         "energy.theta_i_max_deg=95"], capture_output=True, text=True)
     assert p.returncode == 2 and "89.99 deg, got 95" in p.stderr, p.stderr
+
+
+def test_explicit_phi_d_slices_cover_only_their_arc(tmp_path):
+    # one φd slice (e.g. a single-slice EXR) is not an answer for every φd; an evenly spaced
+    # list that goes round the fold's period stays periodic
+    one = brdftab.grids.RusinkiewiczGrid(20, 20, np.radians([90.0]))
+    assert one.axes[2].period is None and one.axes[2].domain == pytest.approx((np.pi / 2, np.pi / 2))
+    t = tabulate(GGX, one, progress=False)
+    t.outside = "raise"
+    with pytest.raises(BrdftabError, match=r"phi_d in \[90, 90\] deg"):
+        t.eval(sph(30, 0), sph(40, 115))
+    ring = brdftab.grids.RusinkiewiczGrid(20, 20, np.radians(np.arange(0, 180, 10.0)))
+    assert ring.axes[2].period == pytest.approx(np.pi)
+    brdftab.save(t, tmp_path / "one.nc")
+    assert brdftab.open(tmp_path / "one.nc").grid.axes[2].period is None

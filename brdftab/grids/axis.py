@@ -31,7 +31,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..params import Kind, register_kind, suggest
 
-__all__ = ["Axis", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS", "NODE_RULES", "HALF_PI", "TWO_PI",
+__all__ = ["Axis", "angle_axis", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS", "NODE_RULES", "HALF_PI", "TWO_PI",
            "MAX_AXIS_NODES", "uniform_values", "count", "check_range", "expand_angles", "LONG_NAMES"]
 
 HALF_PI = 0.5 * np.pi
@@ -182,6 +182,19 @@ class Axis:
             return f"{self.name} (periodic)"
         lo, hi = np.degrees(self.domain)
         return f"{self.name} in [{lo:.6g}, {hi:.6g}] deg"
+
+
+def angle_axis(name, values, period, domain=None) -> "Axis":
+    """An explicit list on an angle axis of period ``period``: periodic when its nodes go
+    round the circle without a wider gap at the seam than between them; otherwise it covers
+    only its listed arc (``[first, last]``, or ``domain``) and queries elsewhere are outside
+    (a single φd slice is not an answer for every φd)."""
+    v = np.asarray(values, float)
+    if v.size > 1:
+        seam = v[0] + period - v[-1]
+        if seam <= np.diff(v).max() * (1 + 1e-9):
+            return Axis(name, v, "linear", period)
+    return Axis(name, v, "linear", None, period, domain=domain)
 
 
 def uniform_values(n: int, lo: float, length: float, position: str, warp: str = "linear") -> np.ndarray:

@@ -16,8 +16,8 @@ import numpy as np
 from ..errors import ParameterError
 from ..geometry import _hd_to_io_trig, io_to_hd
 from ..params import Param, suggest
-from .axis import (HALF_PI, MAX_AXIS_NODES, PHI_D_FOLDS, SAMPLE_POSITIONS, TWO_PI, Axis, check_range, count,
-                   fold_phi_d, uniform_values)
+from .axis import (HALF_PI, MAX_AXIS_NODES, PHI_D_FOLDS, SAMPLE_POSITIONS, TWO_PI, Axis, angle_axis, check_range,
+                   count, fold_phi_d, uniform_values)
 from .base import Grid, choice_attr, read_coordinate, register
 
 __all__ = ["RusinkiewiczGrid"]
@@ -89,7 +89,7 @@ class RusinkiewiczGrid(Grid):
                 vals = np.asarray(spec, float)
                 why = f" (phi_d_fold = '{phi_d_fold}')" if label == "phi_d" else ""
                 check_range(label, vals, lo, lo + length, closed=not periodic, why=why)
-                axes[label] = Axis(label, vals, "linear", length if periodic else None)
+                axes[label] = angle_axis(label, vals, length) if periodic else Axis(label, vals, "linear", None)
         self._set_axes(tuple(axes[n] for n in self._names(self.anisotropic)))
 
     @staticmethod
@@ -212,8 +212,8 @@ class RusinkiewiczGrid(Grid):
                     raise ParameterError(label, f"coordinate '{label}': {exc.detail}") from None
                 if domain is not None and (domain[0] < lo - 1e-9 or domain[1] > lo + length + 1e-9):
                     raise ParameterError(label, f"coordinate '{label}': domain outside the axis range")
-                axes.append(Axis(label, vals, warp, length if periodic else None, domain=None if periodic else domain,
-                                 rule="explicit"))
+                axes.append(angle_axis(label, vals, length, domain) if periodic else
+                            Axis(label, vals, warp, None, domain=domain, rule="explicit"))
             else:
                 expect = uniform_values(vals.size, lo, length, rule, warp)
                 diff = float(np.max(np.abs(expect - vals)))
