@@ -245,6 +245,9 @@ class Check:
 
     name: str = ""
     family: str = ""
+    #: ``(lower, upper)`` threshold pairs: a layer that sets ``upper`` alone resets ``lower``
+    #: set by a lower layer (e.g. expected values and the angles they belong to).
+    replaces: tuple = ()
     summary: str = ""
     level: str = "error"
     thresholds: tuple = ()
@@ -327,6 +330,11 @@ def configure(*layers) -> dict:
             if not isinstance(cfg, dict):
                 raise ParameterError(name, "expected a table of level and thresholds")
             check = CHECKS[name]
+            given = {_convert(check, name, k, v)[0] for k, v in cfg.items() if k != "level"}
+            for lower, upper in check.replaces:
+                # a layer that sets `upper` without `lower` replaces the pair a lower layer set
+                if upper in given and lower not in given:
+                    out[name][lower] = next(p.default for p in check.thresholds if p.name == lower)
             for key, value in cfg.items():
                 if key == "level":
                     if value not in LEVELS:

@@ -179,6 +179,7 @@ class Albedo(Check):
     family = "energy"
     summary = ("Albedo integrals: the a(θi) curve and the white-sky albedo; optional expected values compared "
                "within a tolerance.")
+    replaces = (("expected_theta_i", "expected"),)
     thresholds = (
         Param("expected", "floats", "Expected a(θi): one number for every θi of the sweep, or a list at "
               "expected_theta_i_deg.", default=None, minimum=0.0),
