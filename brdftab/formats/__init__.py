@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import importlib.util
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -111,6 +112,15 @@ def register(fmt: FileFormat) -> FileFormat:
 def available() -> dict:
     """``{name: FileFormat}`` of the formats whose optional libraries are installed."""
     return {n: f for n, f in FORMATS.items() if f.available}
+
+
+def read_head(path, n: int = HEAD_BYTES):
+    """``(first n bytes, file size)`` of ``path``; an unreadable file is a FormatError."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(n), os.fstat(fh.fileno()).st_size
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
 
 
 def format_for(path=None, format: str | None = None) -> FileFormat:

@@ -31,7 +31,7 @@ import xarray as xr
 from ..channels import Layout
 from ..errors import BrdftabError, FormatError, ParameterError
 from ..grids import RusinkiewiczGrid, merl_grid
-from . import FileFormat, register
+from . import FileFormat, read_head, register
 
 __all__ = ["read_exr", "write_exr", "native_grid", "check_options", "MAGIC"]
 
@@ -402,12 +402,7 @@ def read_exr(path):
     """Read BRDF slices (single- or multi-part EXR written by brdftab) into a table."""
     OpenEXR = _openexr()
     path = Path(path)
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(len(MAGIC))
-            size = os.fstat(fh.fileno()).st_size
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+    head, size = read_head(path, len(MAGIC))
     if head != MAGIC:
         raise FormatError(f"{path}: not an OpenEXR file (it does not start with the EXR magic number)")
 

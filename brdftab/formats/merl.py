@@ -26,7 +26,6 @@ unless ``phi_h_average`` or ``symmetrize`` asks for its φh average or its recip
 from __future__ import annotations
 
 import hashlib
-import os
 import struct
 from pathlib import Path
 
@@ -37,7 +36,7 @@ from ..models.combinators import Average
 from ..channels import Layout
 from ..errors import FormatError, ParameterError
 from ..grids import merl_grid
-from . import FileFormat, register
+from . import FileFormat, read_head, register
 
 __all__ = ["read_merl", "write_merl", "merl_raw", "prepare_merl", "SCALE", "DIMS", "FILE_SIZE", "CORRECTION",
            "MISSING_RAW"]
@@ -72,12 +71,7 @@ def sniff(head: bytes, size: int) -> bool:
 def read_merl(path):
     """Read a MERL ``.binary`` file into a :class:`~brdftab.table.Table` (RGB, MERL grid)."""
     path = Path(path)
-    try:
-        with open(path, "rb") as fh:
-            head = fh.read(len(HEADER))
-            size = os.fstat(fh.fileno()).st_size
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+    head, size = read_head(path, len(HEADER))
     _check_layout(path, head, size)
     try:
         raw = np.fromfile(path, dtype="<f8", count=3 * N_BIN, offset=len(HEADER))

@@ -56,7 +56,19 @@ class Sum(Model):
         return out
 
 
-class Scale(Model):
+class _OneTerm(Model):
+    """A combinator of one ``term``: its lobe is the term's (quadrature hints)."""
+
+    @property
+    def lobe_width(self):
+        return self.term.lobe_width
+
+    @property
+    def lobe_axes(self):
+        return self.term.lobe_axes
+
+
+class Scale(_OneTerm):
     name = "scale"
     summary = "A term multiplied by a per-channel or spectral factor, f = s · f_term."
     reference = "Nicodemus1977"
@@ -73,19 +85,11 @@ class Scale(Model):
         self.reciprocal = term.reciprocal
         self.energy_conserving = term.energy_conserving and bool(np.all(factor.values <= 1.0))
 
-    @property
-    def lobe_width(self):
-        return self.term.lobe_width
-
-    @property
-    def lobe_axes(self):
-        return self.term.lobe_axes
-
     def _eval(self, wi, wo, lam, n):
         return self.term._eval(wi, wo, lam, n) * np.asarray(self.factor.at(lam, n))[None, :]
 
 
-class Average(Model):
+class Average(_OneTerm):
     name = "average"
     summary = "Mean of a term over rotations about the normal and/or over swapping wi and wo."
     reference = "Nicodemus1977"
@@ -106,14 +110,6 @@ class Average(Model):
         self.reciprocal = term.reciprocal or swap
         # the swapped half of a non-reciprocal term need not conserve energy
         self.energy_conserving = term.energy_conserving and (term.reciprocal or not swap)
-
-    @property
-    def lobe_width(self):
-        return self.term.lobe_width
-
-    @property
-    def lobe_axes(self):
-        return self.term.lobe_axes
 
     def _eval(self, wi, wo, lam, n):
         angles = 2.0 * np.pi * np.arange(self.rotations) / self.rotations if self.rotations > 1 else [0.0]
