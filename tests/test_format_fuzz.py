@@ -1,4 +1,4 @@
-"""Fuzzing the MERL and EXR readers: random bytes and mutated valid files give a table or a
+"""Fuzzing the MERL, EXR and netCDF readers: random bytes and mutated valid files give a table or a
 brdftab error (a ``BrdftabError`` subclass, one line naming the file), never another
 exception type.
 """
@@ -123,3 +123,54 @@ def test_exr_mutated_file(folder, exr_files, which, kind, cut, spots):
     path = folder / "mutated.exr"
     path.write_bytes(bytes(data))
     _read_ok_or_brdftab_error(path)
+
+
+# --- netCDF ------------------------------------------------------------------------------------
+# Random bytes behind the HDF5/CDF magic numbers, truncations anywhere, and corrupted sample
+# data. (Arbitrary corruption of HDF5's own metadata is left out: that tests the HDF5 library,
+# whose C code, not brdftab, would be on trial.)
+NC_MAGICS = [b"\x89HDF\r\n\x1a\n", b"CDF\x01", b"CDF\x02", b""]
+
+
+@pytest.fixture(scope="module")
+def nc_bytes(folder):
+    t = tabulate(models.create("microfacet", alpha=0.3), RusinkiewiczGrid(16, 16, 32), progress=False)
+    path = folder / "valid.nc"
+    brdftab.save(t, path)
+    return path.read_bytes()
+
+
+def _use(path):
+    table = _read_ok_or_brdftab_error(path)
+    if table is not None:
+        table.statistics()
+        table.eval([0.3, 0.1, 0.9], [-0.2, 0.0, 0.95])
+
+
+@settings(FUZZ, max_examples=40)
+@given(magic=st.sampled_from(NC_MAGICS), data=st.binary(max_size=512))
+def test_netcdf_random_bytes(folder, magic, data):
+    path = folder / "random.nc"
+    path.write_bytes(magic + data)
+    with pytest.raises(BrdftabError) as info:
+        brdftab.open(path)
+    assert "\n" not in str(info.value)
+
+
+@settings(FUZZ, max_examples=30)
+@given(cut=st.floats(0.0, 0.999), data_flip=st.floats(0.6, 0.99), n=st.integers(1, 4000),
+       kind=st.sampled_from(["truncate", "corrupt-data"]))
+def test_netcdf_mutated_file(folder, nc_bytes, cut, data_flip, n, kind):
+    data = bytearray(nc_bytes)
+    if kind == "truncate":
+        data = data[:int(cut * len(data))]
+    else:  # the compressed samples sit after HDF5's metadata, in the second half of the file
+        start = int(data_flip * len(data))
+        for i in range(start, min(len(data), start + n)):
+            data[i] ^= 0xA5
+    path = folder / "mutated.nc"
+    path.write_bytes(bytes(data))
+    try:
+        _use(path)
+    except BrdftabError as exc:
+        assert "\n" not in str(exc)
