@@ -551,7 +551,8 @@ def models(name, as_json):
         click.echo(f"{'references:' if i == 0 else '':<11} {text}")
     click.echo("parameters (spec key, accepted values, default):")
     for r, p in zip(rows, cls.params):
-        default = "required" if r["required"] else ("none" if r["default"] is None else f"default {r['default']!r}")
+        default = ("required" if r["required"] else
+                   "none" if r["default"] is None else f"default {_toml_value(r['default'])}")
         units = f" [{r['units']}]" if r["units"] and r["units"] != "1" else ""
         when = f"; {r['used_when']}" if r["used_when"] else ""
         click.echo(f"  {r['spec_key']}{units}: {p.expected()}; {default}{when}")
