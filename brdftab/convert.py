@@ -215,33 +215,17 @@ def _rotations(grid) -> int:
 # the resampling figures
 
 def check_points(grid, n: int = CHECK_POINTS, seed: int = 0):
-    """``n`` random direction pairs inside ``grid``'s domain: each between a random node and
-    its neighbour one step up every axis (directions blended, then normalized); pairs below
-    the horizon are left out. For a sample layout that is not a brdftab grid (a format's
-    own), pairs uniform over the hemisphere."""
+    """``n`` random direction pairs at which a written table is compared with its source: the
+    centres of random cells of ``grid`` (the tabulation check's points, above the horizon);
+    for a sample layout that is not a brdftab grid (a format's own), pairs uniform over the
+    hemisphere."""
+    from .checks.tabulation import cell_centres
     from .grids import Grid
 
+    if isinstance(grid, Grid):
+        return cell_centres(grid, n, seed)
     rng = np.random.default_rng(seed)
-    if not isinstance(grid, Grid):
-        return _uniform_pairs(rng, n)
-    shape = grid.shape
-    lo = np.stack([rng.integers(0, s, n) for s in shape])
-    hi = lo + 1
-    for k, ax in enumerate(grid.axes):
-        hi[k] = hi[k] % shape[k] if ax.period is not None else np.minimum(hi[k], shape[k] - 1)
-    t = rng.random(n)[:, None]
-    wi0, wo0 = _node_directions(grid, lo)
-    wi1, wo1 = _node_directions(grid, hi)
-    wi = (1 - t) * wi0 + t * wi1
-    wo = (1 - t) * wo0 + t * wo1
-    with np.errstate(invalid="ignore", divide="ignore"):
-        wi /= np.linalg.norm(wi, axis=1, keepdims=True)
-        wo /= np.linalg.norm(wo, axis=1, keepdims=True)
-    keep = np.isfinite(wi).all(1) & np.isfinite(wo).all(1) & (wi[:, 2] > 1e-6) & (wo[:, 2] > 1e-6)
-    return wi[keep], wo[keep]
 
-
-def _uniform_pairs(rng, n):
     def hemisphere():
         z = rng.random(n) * (1 - 2e-6) + 1e-6
         phi = rng.random(n) * 2 * np.pi
@@ -249,17 +233,6 @@ def _uniform_pairs(rng, n):
         return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
     return hemisphere(), hemisphere()
-
-
-def _node_directions(grid, idx):
-    flat = np.ravel_multi_index(tuple(idx), grid.shape)
-    uniq, inverse = np.unique(flat, return_inverse=True)
-    wi = np.empty((uniq.size, 3))
-    wo = np.empty((uniq.size, 3))
-    for j, f in enumerate(uniq):
-        a, b = grid.directions(int(f), int(f) + 1)
-        wi[j], wo[j] = a[0], b[0]
-    return wi[inverse], wo[inverse]
 
 
 def difference(source, written, n: int = CHECK_POINTS, seed: int = 0):

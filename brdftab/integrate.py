@@ -59,7 +59,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from .geometry import sph_to_vec
+from .geometry import rot_z, sph_to_vec
 from .quadrature import gauss_legendre
 
 __all__ = ["AlbedoCurve", "albedo_curve", "directional_albedo", "lobe_width", "lobe_widths", "outgoing_rule",
@@ -104,14 +104,6 @@ def _half_vectors(theta_i, psi, theta_h):
     return h, 2.0 * c[..., None] * h - wi, c
 
 
-def _rotate_z(v, angle):
-    ca, sa = np.cos(angle), np.sin(angle)
-    out = v.copy()
-    out[..., 0] = ca * v[..., 0] - sa * v[..., 1]
-    out[..., 1] = sa * v[..., 0] + ca * v[..., 1]
-    return out
-
-
 def lobe_width(brdf, theta_i: float, phi_i: float = 0.0, wavelengths=None) -> float:
     """Angular width [rad] of the BRDF's lobe about the mirror direction, in half-vector space.
 
@@ -138,7 +130,7 @@ def lobe_widths(brdf, theta_i, phi_i, wavelengths=None) -> np.ndarray:
     c = np.empty((m, k))
     for j in range(m):
         _, w, cc = _half_vectors(theta_i[j], psi, th)
-        wo[j] = _rotate_z(w, phi_i[j])
+        wo[j] = rot_z(w, phi_i[j])
         c[j] = cc
     wi = sph_to_vec(theta_i, phi_i)
     f = brdf.eval(np.broadcast_to(wi[:, None, :], wo.shape).reshape(-1, 3), wo.reshape(-1, 3), wavelengths)
@@ -233,7 +225,7 @@ def outgoing_rule(theta_i: float, phi_i: float = 0.0, width: float = MAX_WIDTH, 
     psi_b = np.broadcast_to(psi[:, None], th.shape)[keep]
     h, wo, c = _half_vectors(theta_i, psi_b, th[keep])
     w = (wth * np.sin(th) * wpsi[:, None])[keep] * 4.0 * c
-    return _rotate_z(wo, float(phi_i)), w
+    return rot_z(wo, float(phi_i)), w
 
 
 # --------------------------------------------------------------------------------------------

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import hd_to_io, io_to_hd
+from ..geometry import hd_to_io, io_to_hd, rot_z
 from ..params import Param
 from . import Check, register
 from ._pairs import asymmetry, fmt_pair, sample_pairs, where_deg
@@ -38,14 +38,6 @@ def _thresholds(max_rel, weighted):
         Param("pairs", "int", "Random direction pairs (models).", default=16384, minimum=16, maximum=10_000_000),
         Param("seed", "int", "Seed of the random direction pairs.", default=0, minimum=0),
     )
-
-
-def _rot_z(v, angle):
-    c, s = np.cos(angle), np.sin(angle)
-    out = v.copy()
-    out[..., 0] = c * v[..., 0] - s * v[..., 1]
-    out[..., 1] = s * v[..., 0] + c * v[..., 1]
-    return out
 
 
 def _rows(v, partner, w):
@@ -152,7 +144,7 @@ class Isotropy(_Pairwise):
 
         def rotate(wi, wo, rng):
             psi = rng.uniform(0.0, 2 * np.pi, wi.shape[0])
-            return _rot_z(wi, psi), _rot_z(wo, psi), np.ones(wi.shape[0], bool)
+            return rot_z(wi, psi), rot_z(wo, psi), np.ones(wi.shape[0], bool)
 
         return self._sampled(ctx, rotate, max_relative, weighted, pairs, seed, passed, note)
 
