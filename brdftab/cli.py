@@ -23,6 +23,7 @@ import numpy as np
 
 from . import _atomic
 from ._version import __version__
+from .cli_validate import check_options, cli_layer, validate
 from .errors import BrdftabError
 
 DEBUG_KEY = "brdftab.debug"
@@ -188,15 +189,11 @@ def main():
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
 @click.option("--allow-invalid", is_flag=True, default=None,
               help="Write even if a check fails (the report is stored in the file's metadata).")
-@click.option("--level", "levels", multiple=True, metavar="CHECK=LEVEL",
-              help="Set a check's level before export: off, warn or error (repeatable).")
-@click.option("--set", "settings", multiple=True, metavar="CHECK.NAME=VALUE",
-              help="Set a check threshold before export, e.g. energy.tolerance=0.02 (repeatable).")
+@check_options
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: on a terminal, for runs over 2 s).")
 def tabulate(spec, out_dir, overwrite, allow_invalid, levels, settings, progress):
     """Tabulate the model of SPEC on each output's grid, validate, and write its outputs."""
-    from .cli_validate import cli_layer
     from .pipeline import run
     from .spec import load_spec
 
@@ -231,10 +228,7 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, levels, settings, progress
                    "isotropic grid, a non-reciprocal one on a grid folded by reciprocity).")
 @click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
 @click.option("--allow-invalid", is_flag=True, help="Write even if IN fails validation.")
-@click.option("--level", "levels", multiple=True, metavar="CHECK=LEVEL",
-              help="Level of a validation check: off, warn or error (repeatable), as for brdftab validate.")
-@click.option("--set", "settings", multiple=True, metavar="CHECK.NAME=VALUE",
-              help="Threshold of a validation check (repeatable), as for brdftab validate.")
+@check_options
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: on a terminal, for runs over 2 s).")
 @click.option("--json", "as_json", is_flag=True, help="Print what was done as JSON.")
@@ -265,7 +259,6 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
         inputs.append((grid_file, "the grid file"))
     checks = None
     if levels or settings:
-        from .cli_validate import cli_layer
 
         checks = cli_layer(levels, settings)
     result = conv.convert(source, target, grid=grid, wavelengths=wavelengths, format=fmt, options=opts,
@@ -595,7 +588,7 @@ def grids(type_name, as_json):
         click.echo(f"      {r['doc']}")
 
 
-main.add_command(__import__("brdftab.cli_validate", fromlist=["validate"]).validate)  # brdftab validate
+main.add_command(validate)
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -53,6 +53,16 @@ def _value(text: str):
         return text
 
 
+def check_options(command):
+    """The ``--level CHECK=LEVEL`` and ``--set CHECK.NAME=VALUE`` options of every command that
+    runs checks (``validate``, ``tabulate``, ``convert``); :func:`cli_layer` reads them."""
+    command = click.option("--set", "settings", multiple=True, metavar="CHECK.NAME=VALUE",
+                           help="Set a check threshold, e.g. energy.tolerance=0.005 or albedo.expected=0.8 "
+                                "(repeatable; angles as NAME_deg).")(command)
+    return click.option("--level", "levels", multiple=True, metavar="CHECK=LEVEL",
+                        help="Set a check's level: off, warn or error (repeatable).")(command)
+
+
 def cli_layer(levels=(), settings=()) -> dict:
     """A configuration layer from ``--level CHECK=LEVEL`` and ``--set CHECK.NAME=VALUE`` (values
     are TOML: numbers, lists, strings)."""
@@ -141,11 +151,7 @@ def list_checks() -> str:
               help="Print a JSON document (schema: brdftab/checks/report.schema.json) instead of text.")
 @click.option("--junit", type=click.Path(dir_okay=False, path_type=Path), metavar="PATH",
               help="Also write JUnit XML to PATH (testsuite per input, testcase per check).")
-@click.option("--level", "levels", multiple=True, metavar="CHECK=LEVEL",
-              help="Set a check's level: off, warn or error (repeatable).")
-@click.option("--set", "settings", multiple=True, metavar="CHECK.NAME=VALUE",
-              help="Set a threshold, e.g. energy.tolerance=0.005 or albedo.expected=0.8 (repeatable; angles as "
-                   "NAME_deg).")
+@check_options
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
               help="A TOML file whose [validation] table applies to every input (over a spec's own).")
 @click.option("--list-checks", "list_checks_", is_flag=True,
