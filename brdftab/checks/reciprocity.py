@@ -10,6 +10,14 @@
   random pairs inside the region it covers, and only the albedo-weighted figure is judged,
   against its own looser threshold (``weighted_interpolated``: the table's interpolation error
   counts as asymmetry there).
+* A table whose pairs cannot be compared with their reverse inside the region it covers (a
+  zoomed gonio grid around the mirror direction) is judged on the model it was made from, at
+  the sampled pairs it covers one way: never skipped while that model is known.
+
+A BRDF that *declares* itself non-reciprocal (``reciprocal = False``: a model whose formula is
+not reciprocal by construction, or a table made from one) is not refused for it: its measured
+asymmetry is reported as WARN (PASS when it is within the thresholds), never FAIL and never
+skipped. A BRDF that declares reciprocity and shows asymmetry FAILs.
 
 Figures: the largest and rms relative asymmetry |f − f'| / ½(f + f'), and the albedo-weighted
 asymmetry ∫∫ |f − f'| cos cos / ∫∫ ½(f + f') cos cos. Missing samples are left out.
@@ -21,7 +29,8 @@ import numpy as np
 
 from ..params import Param
 from . import Check, register
-from ._pairs import asymmetry, fmt_pair, sample_pairs, where_deg
+from ._pairs import SCALES, asymmetry, fmt_pair, sample_pairs, where_deg
+from ._reference import reference
 from ._tables import data_values, gonio_node_weights, match_axis, node_where, phi_d_pairs
 
 __all__ = ["Reciprocity", "covered"]
@@ -105,6 +114,12 @@ class Reciprocity(Check):
     )
 
     def run(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed):
+        out = self._run(ctx, max_relative, weighted, weighted_interpolated, pairs, seed)
+        if not ctx.brdf.reciprocal and out.status == "fail":
+            out.status = "warn"  # declared non-reciprocal: reported, never refused
+        return out
+
+    def _run(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed):
         b = ctx.brdf
         declared = "" if b.reciprocal else " (declared non-reciprocal)"
         if ctx.on_grid:
@@ -140,12 +155,13 @@ class Reciprocity(Check):
 
     def _sampled(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed, declared):
         b = ctx.brdf
-        wi, wo, w = ctx.memo(("pairs", pairs, seed), lambda: sample_pairs(pairs, seed))
+        scales = pair_scales(b if not ctx.is_table else (reference(ctx)[0] or b))
+        wi, wo, w = ctx.memo(("pairs", pairs, seed, scales), lambda: sample_pairs(pairs, seed, scales))
         interp = ctx.is_table
         if ctx.on_grid:
             keep = covered(b, wi, wo) & covered(b, wo, wi)
             if not keep.any():
-                return self.skip("the table covers no direction pair together with its reverse")
+                return self._on_source(ctx, wi, wo, w, max_relative, weighted, declared)
             wi, wo, w = wi[keep], wo[keep], w[keep]
         f1 = ctx.eval(b, wi, wo)
         f2 = ctx.eval(b, wo, wi)
@@ -168,3 +184,37 @@ class Reciprocity(Check):
                             f"albedo-weighted {s['weighted']:.3g} over {s['compared']} random pairs "
                             f"(accepted: {max_relative:g} / {weighted:g}){declared}",
                             mode="pairs", weighted_threshold=weighted, **s)
+
+    def _on_source(self, ctx, wi, wo, w, max_relative, weighted, declared):
+        """A table none of whose sampled pairs it covers together with their reverse: judge
+        the model it was made from at the pairs the table covers one way."""
+        t = ctx.brdf
+        model, why = reference(ctx)
+        if model is None:
+            return self.skip(f"the table covers no direction pair together with its reverse, and {why}")
+        keep = covered(t, wi, wo)
+        if not keep.any():
+            return self.skip("the table covers none of the sampled direction pairs")
+        wi, wo, w = wi[keep], wo[keep], w[keep]
+        s = asymmetry(ctx.eval(model, wi, wo), ctx.eval(model, wo, wi), w)
+        worst = s.pop("worst")
+        at = ""
+        if worst is not None:
+            s["where"] = where_deg(wi[worst], wo[worst])
+            at = f" at {fmt_pair(s['where'])}"
+        ok = s["max_relative"] <= max_relative and s["weighted"] <= weighted
+        return self.outcome(ok, s["max_relative"], max_relative,
+                            f"the table covers no pair together with its reverse; its source {model.name}: max "
+                            f"relative asymmetry {s['max_relative']:.3g}{at}, rms {s['rms_relative']:.3g}, "
+                            f"albedo-weighted {s['weighted']:.3g} over {s['compared']} pairs the table covers "
+                            f"(accepted: {max_relative:g} / {weighted:g}){declared}",
+                            mode="source", weighted_threshold=weighted, **s)
+
+
+def pair_scales(brdf) -> tuple:
+    """Widths of the pair sampler's mirror components: the default ones, plus the BRDF's
+    declared lobe width when it is narrower than all of them (so a 2e-4-wide peak is visited)."""
+    width = getattr(brdf, "lobe_width", None)
+    if callable(width) or width is None or not np.isfinite(width) or width >= min(SCALES):
+        return SCALES
+    return (float(width),) + tuple(SCALES)
