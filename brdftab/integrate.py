@@ -40,6 +40,22 @@ Ideal specular components are not sampled: a BRDF may expose
 ``specular_delta(wi, wavelengths) -> [..., C]``, the fraction of the incident flux sent into
 the mirror direction, which is added to a(wi).
 
+Lobe hints
+----------
+A BRDF whose lobes are not centred on the mirror direction of the surface tells the quadrature
+where they are; the albedo is linear in f, so parts are integrated separately and added:
+
+* ``quadrature_parts()`` → BRDFs whose sum is the BRDF (a ``sum``'s terms, a seed model's
+  terms); each part is integrated on a rule that follows its own lobe (recursively). The parts
+  carry everything, including their own ``specular_delta``;
+* ``lobe_frame(wi)`` → a 3×3 rotation R: the part's lobe is a microfacet-type lobe about the
+  normal of the rotated frame u = R w (the ``rotated`` combinator, a peak on a tilted facet
+  population). The half-vector rule above is built in that frame (θi′, φi′ of R wi) and mapped
+  back; nodes below the macro horizon are dropped (f = 0 there);
+* ``albedo_rule(wi, wavelengths=None)`` → (wo[N, 3], w[N] in sr): an outgoing rule the part
+  builds on its own features (a diffraction band's fringes), used instead of the generic one;
+  with several wavelengths it is built and used once per wavelength.
+
 Missing samples
 ---------------
 A table evaluates to NaN where its samples are missing. Those quadrature nodes are left out
@@ -236,7 +252,133 @@ def outgoing_rule(theta_i: float, phi_i: float = 0.0, width: float = MAX_WIDTH, 
 BATCH = 1 << 18
 
 
+def _leaves(brdf) -> list:
+    """The parts of ``brdf`` to integrate separately (``quadrature_parts``, recursively)."""
+    fn = getattr(brdf, "quadrature_parts", None)
+    parts = fn() if callable(fn) else None
+    if not parts:
+        return [brdf]
+    out = []
+    for p in parts:
+        out.extend(_leaves(p))
+    return out
+
+
 def _integrate(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
+    """(a[M, C], coverage[M, C], widths[M]) for incidence angles ``theta_i[M]``, ``phi_i[M]``,
+    part by part (see *Lobe hints* in the module docstring)."""
+    leaves = _leaves(brdf)
+    if len(leaves) == 1 and not _hinted(leaves[0]):
+        return _integrate_plain(leaves[0], theta_i, phi_i, wavelengths, width, nodes, ratio)
+    total = cover = wmin = None
+    for leaf in leaves:
+        if callable(getattr(leaf, "albedo_rule", None)):
+            a, c, w = _integrate_rule(leaf, theta_i, phi_i, wavelengths)
+        elif callable(getattr(leaf, "lobe_frame", None)):
+            a, c, w = _integrate_framed(leaf, theta_i, phi_i, wavelengths, width, nodes, ratio)
+        else:
+            a, c, w = _integrate_plain(leaf, theta_i, phi_i, wavelengths, width, nodes, ratio)
+        total = a if total is None else total + a
+        cover = c if cover is None else np.minimum(cover, c)
+        wmin = w if wmin is None else np.minimum(wmin, w)
+    return total, cover, wmin
+
+
+def _hinted(b) -> bool:
+    return callable(getattr(b, "albedo_rule", None)) or callable(getattr(b, "lobe_frame", None))
+
+
+def _accumulate(f, proj):
+    """(Σ f w, coverage) of one rule: missing samples (NaN) are left out and counted."""
+    valid = ~np.isnan(f)
+    a = np.einsum("nc,n->c", np.where(valid, f, 0.0), proj)
+    tot = float(proj.sum())
+    bad = np.einsum("nc,n->c", (~valid).astype(float), proj)
+    return a, (1.0 - bad / tot) if tot > 0 else np.ones_like(a)
+
+
+def _delta(brdf, wi, wavelengths):
+    fn = getattr(brdf, "specular_delta", None)
+    if not callable(fn):
+        return 0.0
+    return np.asarray(fn(wi, wavelengths), float).reshape(-1)
+
+
+def _integrate_rule(brdf, theta_i, phi_i, wavelengths):
+    """A part that builds its own outgoing rule (``albedo_rule``)."""
+    import inspect
+
+    rule = brdf.albedo_rule
+    takes_lam = "wavelengths" in inspect.signature(rule).parameters
+    lams = [None] if wavelengths is None or np.ndim(wavelengths) == 0 or len(wavelengths) <= 1 or not takes_lam \
+        else [[float(x)] for x in np.atleast_1d(wavelengths)]
+    m = theta_i.size
+    wi = sph_to_vec(theta_i, phi_i)
+    a = c = None
+    for j in range(m):
+        cols_a, cols_c = [], []
+        for lam in lams:
+            use = wavelengths if lam is None else lam
+            wo, w = rule(wi[j], wavelengths=use) if takes_lam else rule(wi[j])
+            keep = wo[:, 2] > _Z_MIN
+            wo, proj = wo[keep], w[keep] * wo[keep, 2]
+            f = brdf.eval(np.broadcast_to(wi[j], wo.shape), wo, use)
+            aj, cj = _accumulate(f, proj)
+            cols_a.append(aj)
+            cols_c.append(cj)
+        aj, cj = np.concatenate(cols_a), np.concatenate(cols_c)
+        if a is None:
+            a, c = np.zeros((m, aj.size)), np.zeros((m, aj.size))
+        a[j] = aj + _delta(brdf, wi[j], wavelengths)
+        c[j] = cj
+    return a, c, np.full(m, MIN_WIDTH)
+
+
+class _Framed:
+    """A part seen in its lobe's frame (u = R w): what the generic rule integrates."""
+
+    def __init__(self, brdf, R):
+        self.brdf, self.R = brdf, R
+        self.lobe_width = getattr(brdf, "lobe_width", None)
+        self.lobe_axes = getattr(brdf, "lobe_axes", None)
+
+    def eval(self, ui, uo, wavelengths=None):
+        return self.brdf.eval(np.asarray(ui) @ self.R, np.asarray(uo) @ self.R, wavelengths)
+
+
+def _integrate_framed(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
+    """A part whose lobe lives about a tilted normal (``lobe_frame``)."""
+    from .geometry import vec_to_sph
+
+    m = theta_i.size
+    wi = sph_to_vec(theta_i, phi_i)
+    a = c = None
+    widths = np.full(m, MAX_WIDTH)
+    for j in range(m):
+        R = np.asarray(brdf.lobe_frame(wi[j]), float)
+        ui = R @ wi[j]
+        f = None
+        if ui[2] > _Z_MIN:
+            view = _Framed(brdf, R)
+            ti, pj = vec_to_sph(ui)
+            wj = float(lobe_widths(view, [ti], [pj], wavelengths)[0]) if width is None else float(width)
+            widths[j] = wj
+            uo, w = outgoing_rule(float(ti), float(pj), wj, nodes=nodes, ratio=ratio, axes=view.lobe_axes)
+            wo = uo @ R
+            keep = wo[:, 2] > _Z_MIN
+            wo, proj = wo[keep], w[keep] * wo[keep, 2]
+            f = brdf.eval(np.broadcast_to(wi[j], wo.shape), wo, wavelengths)
+            aj, cj = _accumulate(f, proj)
+        if a is None:
+            probe = brdf.eval(wi[j:j + 1], wi[j:j + 1], wavelengths) if f is None else f
+            a, c = np.zeros((m, probe.shape[-1])), np.ones((m, probe.shape[-1]))
+        if f is not None:
+            a[j], c[j] = aj, cj
+        a[j] = a[j] + _delta(brdf, wi[j], wavelengths)
+    return a, c, widths
+
+
+def _integrate_plain(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
     """(a[M, C], coverage[M, C], widths[M]) for incidence angles ``theta_i[M]``, ``phi_i[M]``."""
     m = theta_i.size
     widths = (lobe_widths(brdf, theta_i, phi_i, wavelengths) if width is None

@@ -180,6 +180,9 @@ class Param:
     choices: tuple = ()
     angle: bool = False
     used_when: str = ""
+    #: ``((param, (values…)), …)``: the parameter is used only when each named choice
+    #: parameter has one of the values (e.g. ``n`` only with ``fresnel = 'conductor'``).
+    requires: tuple = ()
 
     @property
     def required(self) -> bool:

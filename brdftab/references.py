@@ -17,6 +17,8 @@ REFERENCES = {
     "Bitterling2024": "M. Bitterling et al., \"Physical models of the bidirectional reflectance of solar receiver "
                       "coatings\" (Pyromark 2500), Solar Energy.",
     "Blinn1977": "J. F. Blinn, \"Models of light reflection for computer synthesized pictures\", SIGGRAPH (1977).",
+    "Butler2015": "S. D. Butler, S. E. Nauyoks, M. A. Marciniak, \"Comparison of microfacet BRDF model to modified "
+                  "Beckmann-Kirchhoff BRDF model for rough and smooth surfaces\", Opt. Express 23, 29100 (2015).",
     "BornWolf1999": "M. Born, E. Wolf, Principles of Optics, 7th ed., Cambridge (1999), §1.5.2 and §14.2.",
     "Cook1982": "R. L. Cook, K. E. Torrance, \"A reflectance model for computer graphics\", ACM TOG 1, 7 (1982).",
     "DeHaas2024": "L. de Haas, \"Pyramidal microfacets: fitting a microfacet model to a pyramid-textured solar cell\", "
@@ -27,6 +29,8 @@ REFERENCES = {
                   "distribution function of sintered polytetrafluoroethylene\", Appl. Opt. 56, 9333 (2017).",
     "He1991": "X. D. He, K. E. Torrance, F. X. Sillion, D. P. Greenberg, \"A comprehensive physical model for light "
               "reflection\", SIGGRAPH (1991).",
+    "Goodman2005": "J. W. Goodman, Introduction to Fourier Optics, 3rd ed., Roberts (2005), §4.4 (Fraunhofer "
+                   "diffraction by rectangular apertures).",
     "Heitz2014": "E. Heitz, \"Understanding the masking-shadowing function in microfacet-based BRDFs\", JCGT 3(2) "
                  "(2014).",
     "Koenderink1998": "J. J. Koenderink, A. J. van Doorn, \"Phenomenological description of bidirectional surface "
@@ -42,6 +46,8 @@ REFERENCES = {
     "Small2021": "T. V. Small, S. D. Butler, M. A. Marciniak, \"Solar cell BRDF measurement and modeling with "
                  "out-of-plane data\", Opt. Express 29, 35501 (2021).",
     "Smith1967": "B. G. Smith, \"Geometrical shadowing of a random rough surface\", IEEE TAP 15, 668 (1967).",
+    "Stover2012": "J. C. Stover, Optical Scattering: Measurement and Analysis, 3rd ed., SPIE (2012), §5 "
+                  "(Rayleigh-Rice vector perturbation theory).",
     "Torrance1967": "K. E. Torrance, E. M. Sparrow, \"Theory for off-specular reflection from roughened surfaces\", "
                     "JOSA 57, 1105 (1967).",
     "Trowbridge1975": "T. S. Trowbridge, K. P. Reitz, \"Average irregularity representation of a rough surface for "

@@ -22,6 +22,7 @@ from brdftab.integrate import directional_albedo
 N_CONFIGS = 6
 
 
+
 def _draw_value(p: Param, rng, depth):
     lo = p.minimum if p.minimum is not None else 0.0
     if p.kind in ("float", "channel"):
@@ -47,6 +48,10 @@ def _draw_value(p: Param, rng, depth):
     raise AssertionError(f"the contract test cannot draw parameter kind {p.kind!r}: teach it")
 
 
+def _default(params, name):
+    return next((p.default for p in params if p.name == name), None)
+
+
 def _leaf(rng):
     if rng.random() < 0.5:
         return models.create("lambert", albedo=float(rng.uniform(0, 0.5)))
@@ -59,7 +64,11 @@ def draw_models(cls, seed, n=N_CONFIGS, depth=0):
     out = []
     for _ in range(400):
         kwargs = {}
-        for p in cls.params:
+        params = list(cls.params)
+        # choices first: a parameter that `requires` a choice is drawn only with it
+        for p in sorted(params, key=lambda p: bool(p.requires)):
+            if any(kwargs.get(k, _default(params, k)) not in users for k, users in p.requires):
+                continue
             if p.default is REQUIRED or rng.random() < 0.6:
                 kwargs[p.name] = _draw_value(p, rng, depth)
         try:

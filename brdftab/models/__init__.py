@@ -11,9 +11,11 @@ from __future__ import annotations
 
 from ..errors import BrdftabError
 from ..params import suggest
-from .combinators import Average, Scale, Sum
+from .combinators import Average, Rotated, Scale, Sum
 from .lambert import Lambert
 from .microfacet import Microfacet
+from .small2021 import Small2021Diffraction, Small2021Peak, SolarCellSmall2021
+from .torrance_sparrow import TorranceSparrow1967
 
 __all__ = ["MODELS", "create", "register", "get"]
 
@@ -27,7 +29,8 @@ def register(cls):
     return cls
 
 
-for _cls in (Lambert, Microfacet, Sum, Scale, Average):
+for _cls in (Lambert, Microfacet, Sum, Scale, Average, Rotated, TorranceSparrow1967, Small2021Peak,
+             Small2021Diffraction, SolarCellSmall2021):
     register(_cls)
 
 

@@ -4,7 +4,10 @@
 * ``scale`` — f = s · f_term with s per channel or spectral;
 * ``average`` — the mean of a term over rotations about the normal (its isotropic part)
   and/or over swapping wi and wo (its reciprocal part), for grids and formats that store
-  only isotropic or reciprocal BRDFs (MERL).
+  only isotropic or reciprocal BRDFs (MERL);
+* ``rotated`` — a term evaluated with its normal tilted by (Δθ, Δφ0) and the sample turned
+  by φ_ref about the macro normal (a facet population with its own mean normal: the offset
+  specular peak of Small et al. 2021, Eqs. 7–8).
 
 Channels combine as in :func:`brdftab.channels.combine_layouts`: grey terms broadcast to the
 others; RGB and spectral terms cannot be mixed. A combination is isotropic (reciprocal) when
@@ -22,7 +25,7 @@ from ..brdf import Model
 from ..channels import combine_layouts
 from ..params import Param
 
-__all__ = ["Sum", "Scale", "Average"]
+__all__ = ["Sum", "Scale", "Average", "Rotated", "rotated_frame"]
 
 
 class Sum(Model):
@@ -48,6 +51,10 @@ class Sum(Model):
         # the narrowest term's lobe decides where the nodes must be
         terms = [t for t in self.terms if t.lobe_width is not None]
         return min(terms, key=lambda t: t.lobe_width).lobe_axes if terms else None
+
+    def quadrature_parts(self):
+        """The terms: each is integrated on a rule that follows its own lobe."""
+        return list(self.terms)
 
     def _eval(self, wi, wo, lam, n):
         out = self.terms[0]._eval(wi, wo, lam, n)
@@ -84,6 +91,13 @@ class Scale(_OneTerm):
         self.isotropic = term.isotropic
         self.reciprocal = term.reciprocal
         self.energy_conserving = term.energy_conserving and bool(np.all(factor.values <= 1.0))
+
+    def quadrature_parts(self):
+        fn = getattr(self.term, "quadrature_parts", None)
+        parts = fn() if callable(fn) else None
+        if not parts:
+            return None
+        return [Scale(factor=self.factor, term=p) for p in parts]
 
     def _eval(self, wi, wo, lam, n):
         return self.term._eval(wi, wo, lam, n) * np.asarray(self.factor.at(lam, n))[None, :]
@@ -125,3 +139,61 @@ class Average(_OneTerm):
                 acc += np.where(ok, f, 0.0)
                 count += ok
         return np.where(count > 0, acc / np.maximum(count, 1), np.nan)
+
+
+def rotated_frame(tilt: float, tilt_azimuth: float = 0.0, phi_ref: float = 0.0) -> np.ndarray:
+    """The rotation R = Ry(−Δθ) · Rz(−Δφ0 − φ_ref) of Small et al. 2021, Eqs. 7a/7b: a
+    direction w (macro frame) has coordinates R @ w in the frame of the tilted normal
+    n2 = Rᵀ ẑ = (sinΔθ cos(Δφ0 + φ_ref), sinΔθ sin(Δφ0 + φ_ref), cosΔθ). Rotations are
+    right-handed; Δφ0 and φ_ref are measured from +x towards +y."""
+    a = -(tilt_azimuth + phi_ref)
+    ca, sa = np.cos(a), np.sin(a)
+    rz = np.array([[ca, -sa, 0.0], [sa, ca, 0.0], [0.0, 0.0, 1.0]])
+    cb, sb = np.cos(-tilt), np.sin(-tilt)
+    ry = np.array([[cb, 0.0, sb], [0.0, 1.0, 0.0], [-sb, 0.0, cb]])
+    return ry @ rz
+
+
+class Rotated(_OneTerm):
+    name = "rotated"
+    summary = ("A term with its normal tilted by (tilt, tilt_azimuth) and the sample turned by phi_ref about the "
+               "macro normal: f(wi, wo) = f_term(R wi, R wo), R = Ry(−Δθ) Rz(−Δφ0 − φref).")
+    reference = "Small2021"
+    params = (
+        Param("term", "brdf", "The BRDF in the tilted frame ([model.term] table in a spec).", units=""),
+        Param("tilt", "float", "Δθ: polar angle of the tilted normal from the macro normal.", units="rad",
+              default=0.0, minimum=0.0, maximum=float(np.radians(89.0)), angle=True),
+        Param("tilt_azimuth", "float", "Δφ0: azimuth of the tilt, from +x towards +y.", units="rad", default=0.0,
+              minimum=float(-2 * np.pi), maximum=float(2 * np.pi), angle=True),
+        Param("phi_ref", "float", "φ_ref: turn of the sample about the macro normal, from +x towards +y (added to "
+              "the tilt azimuth).", units="rad", default=0.0, minimum=float(-2 * np.pi), maximum=float(2 * np.pi),
+              angle=True),
+    )
+
+    def _setup(self, term, tilt, tilt_azimuth, phi_ref):
+        """Directions above the macro surface but below the tilted one give 0 (the term is 0
+        below its horizon); no projected-area factor is applied (as in Small et al. Eq. 8), so
+        no energy conservation is claimed."""
+        self.term = term
+        self.tilt, self.tilt_azimuth, self.phi_ref = tilt, tilt_azimuth, phi_ref
+        self.R = rotated_frame(tilt, tilt_azimuth, phi_ref)
+        self.layout = term.layout
+        self.isotropic = term.isotropic and tilt == 0.0
+        self.reciprocal = term.reciprocal
+        self.energy_conserving = False
+
+    @property
+    def normal(self) -> np.ndarray:
+        """The tilted normal n2 in the macro frame."""
+        return self.R[2].copy()
+
+    @property
+    def lobe_axes(self):
+        return self.term.lobe_axes
+
+    def lobe_frame(self, wi=None):
+        """Quadrature hint: the term's lobe lives about the tilted normal (coordinates R @ w)."""
+        return self.R
+
+    def _eval(self, wi, wo, lam, n):
+        return self.term.eval(wi @ self.R.T, wo @ self.R.T, lam, assume_unit=True)

@@ -12,7 +12,13 @@ A new D, G or F is one class here or in its own module, registered with :func:`r
   ``sample(u1, u2)`` / ``pdf(h)`` (cosθh-weighted normal sampling).
 * A **shadowing** term offers ``G(wi, wo, h, dist)``.
 * A **Fresnel** term offers ``F(cos_d, lam, n_out)`` (per channel or per wavelength) and the
-  channel ``layout`` its parameters imply.
+  channel ``layout`` its parameters imply. Models call ``F_pair(wi, wo, cos_d, lam, n_out)``,
+  which is ``F(cos_d, …)`` for every term that depends on the microfacet angle only; a term
+  that depends on the whole geometry (the Rayleigh–Rice factor Q of θi, θs and φs) overrides
+  ``F_pair`` instead, so the simple terms stay as simple as they are.
+
+A distribution declares its own parameters; ``microfacet`` offers the union of every
+registered distribution's parameters and accepts each only with the distribution that uses it.
 """
 
 from __future__ import annotations
@@ -24,6 +30,7 @@ from ..errors import ParameterError
 from ..params import Param, parse_params, suggest
 from .distributions import d_beckmann, d_ggx, lambda_beckmann, lambda_ggx
 from .fresnel import fresnel_conductor, fresnel_dielectric, fresnel_schlick
+from .rayleigh_rice import q_unpolarized
 
 __all__ = ["COMPONENTS", "Component", "register", "get", "create", "Distribution", "Shadowing", "Fresnel"]
 
@@ -102,6 +109,16 @@ class Distribution(Component):
     @property
     def isotropic(self) -> bool:
         return self.alpha_x == self.alpha_y
+
+    @property
+    def width(self) -> float:
+        """Angular width [rad, roughly] of the narrowest axis of the lobe (a quadrature hint)."""
+        return min(self.alpha_x, self.alpha_y)
+
+    @property
+    def axes(self):
+        """Widths along the frame's x and y axes of an anisotropic lobe, else None."""
+        return None if self.isotropic else (self.alpha_x, self.alpha_y)
 
     def D(self, h):
         raise NotImplementedError
@@ -235,6 +252,12 @@ class Fresnel(Component):
         """Reflectance at ``cos_d[M]`` (cosine to the microfacet normal), shape ``(M, n)`` or scalar."""
         raise NotImplementedError
 
+    def F_pair(self, wi, wo, cos_d, lam, n):
+        """Reflectance for the pairs ``wi``, ``wo[M, 3]`` whose microfacet angle has cosine
+        ``cos_d[M]``; shape ``(M, n)`` or scalar. Depends on ``cos_d`` only unless a term
+        overrides it."""
+        return self.F(cos_d, lam, n)
+
 
 @register
 class NoFresnel(Fresnel):
@@ -282,6 +305,28 @@ class Conductor(Fresnel):
         return fresnel_conductor(cos_d[:, None], self.values["n"].at(lam, n), self.values["k"].at(lam, n))
 
 
+@register
+class RayleighRice(Fresnel):
+    name = "rayleigh-rice"
+    summary = ("Rayleigh–Rice polarization factor Q = ½(Q_ss + Q_pp + Q_ps + Q_sp) of θi, θs, φs for an index "
+               "n + ik (equals the Fresnel reflectance at the mirror direction).")
+    reference = "Stover2012; Butler2015"
+    params = (
+        Param("n", "channel", "Real part of the relative refractive index.", minimum=0.0, exclusive_minimum=True),
+        Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik).", default=0.0,
+              minimum=0.0),
+    )
+
+    def F(self, cos_d, lam, n):
+        # what Q equals at the mirror direction, where cos_d = cosθi
+        return fresnel_conductor(cos_d[:, None], self.values["n"].at(lam, n), self.values["k"].at(lam, n))
+
+    def F_pair(self, wi, wo, cos_d, lam, n):
+        eta = np.broadcast_to(np.asarray(self.values["n"].at(lam, n), float), (n,))
+        kap = np.broadcast_to(np.asarray(self.values["k"].at(lam, n), float), (n,))
+        return q_unpolarized(wi[:, None, :], wo[:, None, :], eta[None, :], kap[None, :])
+
+
 # --------------------------------------------------------------------------------------------
 # Composing models: a model's flat spec keys for one component kind
 
@@ -293,7 +338,8 @@ def component_param(kind: str, default: str, doc: str) -> Param:
 
 def member_params(kind: str, skip=()) -> tuple:
     """Union of the parameters of every registered component of ``kind`` (first declaration
-    wins), with ``used_when`` saying which components use each."""
+    wins), with ``used_when`` saying which components use each and ``requires`` naming them
+    (so tools that draw parameters, like the contract test, draw each only with its users)."""
     seen = {}
     users = {}
     for cname, cls in COMPONENTS[kind].items():
@@ -306,7 +352,7 @@ def member_params(kind: str, skip=()) -> tuple:
     for name, p in seen.items():
         when = f"{kind} = " + " or ".join(repr(u) for u in users[name])
         out.append(Param(p.name, p.kind, p.doc, p.units, None, p.minimum, p.maximum, p.exclusive_minimum, p.choices,
-                         p.angle, when))
+                         p.angle, when, requires=((kind, tuple(users[name])),)))
     return tuple(out)
 
 

@@ -4,7 +4,7 @@
 (:mod:`brdftab.models.components`): a distribution D (``beckmann``, ``ggx``; isotropic α or
 anisotropic α_x, α_y), a shadowing term G (``smith``, ``smith-height-correlated``,
 ``v-groove``, ``none``) and a Fresnel term F (``none``, ``schlick``, ``dielectric``,
-``conductor``; per channel or per wavelength). Specs name the components with flat keys
+``conductor``, ``rayleigh-rice``; per channel or per wavelength). Specs name the components with flat keys
 (``distribution = "ggx"``, ``fresnel = "conductor"``, ``n``, ``k``); each component's own
 parameters are accepted only with that component.
 
@@ -37,11 +37,22 @@ class ComposedParams:
 def _microfacet_params():
     return (
         C.component_param("distribution", "ggx", "Microfacet normal distribution D."),
-        *C.Distribution.params,
+        *C.member_params("distribution"),
         C.component_param("shadowing", "smith", "Shadowing–masking G."),
+        *C.member_params("shadowing"),
         C.component_param("fresnel", "none", "Fresnel term F ('none' reflects 100 %)."),
         *C.member_params("fresnel"),
     )
+
+
+def split_components(values: dict, kinds=("distribution", "shadowing", "fresnel")) -> dict:
+    """The flat parameter values of a composing model, by component kind (each kind's own
+    parameters: the union over its registered members)."""
+    out = {}
+    for kind in kinds:
+        names = {p.name for p in C.member_params(kind)}
+        out[kind] = {k: v for k, v in values.items() if k in names}
+    return out
 
 
 class Microfacet(Model):
@@ -50,23 +61,26 @@ class Microfacet(Model):
     reference = "Cook1982; Walter2007; Heitz2014"
     params = ComposedParams(_microfacet_params)
 
-    def _setup(self, distribution, alpha, alpha_x, alpha_y, shadowing, fresnel, **fresnel_values):
-        self.dist = C.build("distribution", distribution, {"alpha": alpha, "alpha_x": alpha_x, "alpha_y": alpha_y})
-        self.shadow = C.build("shadowing", shadowing, {})
-        self.fres = C.build("fresnel", fresnel, fresnel_values)
-        self.alpha_x, self.alpha_y = self.dist.alpha_x, self.dist.alpha_y
+    def _setup(self, distribution, shadowing, fresnel, **values):
+        parts = split_components(values)
+        self.dist = C.build("distribution", distribution, parts["distribution"])
+        self.shadow = C.build("shadowing", shadowing, parts["shadowing"])
+        self.fres = C.build("fresnel", fresnel, parts["fresnel"])
+        self.alpha_x = getattr(self.dist, "alpha_x", None)
+        self.alpha_y = getattr(self.dist, "alpha_y", None)
         self.isotropic = self.dist.isotropic
         self.layout = self.fres.layout
-        # D·G·F/(4 cos cos) conserves energy when G accounts for masking (G = 1 does not)
-        self.energy_conserving = shadowing != "none"
+        # D·G·F/(4 cos cos) conserves energy when G accounts for masking (G = 1 does not),
+        # and when F does not exceed 1 (the Rayleigh–Rice Q can, away from the mirror direction)
+        self.energy_conserving = shadowing != "none" and fresnel != "rayleigh-rice"
 
     @property
     def lobe_width(self) -> float:
-        return min(self.alpha_x, self.alpha_y)
+        return self.dist.width
 
     @property
     def lobe_axes(self):
-        return None if self.isotropic else (self.alpha_x, self.alpha_y)
+        return self.dist.axes
 
     def ndf(self, h):
         """The normal distribution D(h) [sr⁻¹] at unit microfacet normals ``h[..., 3]`` (0 where h_z <= 0)."""
@@ -78,5 +92,5 @@ class Microfacet(Model):
         h /= norm[:, None]
         cos_d = 0.5 * norm  # wi·h = |wi + wo| / 2
         base = self.dist.D(h) * self.shadow.G(wi, wo, h, self.dist) / (4.0 * wi[:, 2] * wo[:, 2])
-        f = self.fres.F(cos_d, lam, n)
+        f = self.fres.F_pair(wi, wo, cos_d, lam, n)
         return base[:, None] * f if np.ndim(f) else np.repeat(base[:, None], n, axis=1)

@@ -1,0 +1,254 @@
+"""The solar-cell BRDF of Small, Butler and Marciniak 2021: two specular peaks and a diffraction band.
+
+Three terms, each a registered model usable on its own, summed by ``solar-cell-small2021``
+(with an optional Lambertian ρd/π) [Small2021]:
+
+``small2021-peak`` (Eq. 6, the center specular peak)
+    f = ρs · Q(n̂; ωi, ωs) / (2 (cosθi + cosθs)²) · D(θh),
+    D = exp(−tan²θh/m²)/(π m² cos⁴θh) the area-normalized Beckmann distribution (the
+    registered ``beckmann`` component with α = m), Q the Rayleigh–Rice factor as the **plain
+    sum** Q_ss + Q_sp + Q_ps + Q_pp (:func:`~brdftab.models.rayleigh_rice.q_sum`; this is the
+    normalization that reproduces the paper's printed peak values — the half-sum would halve
+    them). Reciprocal and isotropic. Its directional albedo is close to ρs·Q/2 (= ρs R_F(θi)
+    for a narrow peak: 0.0048 at θi = 20° and 0.0049 at 60° with the §4.4.1 parameters).
+the offset peak (Eqs. 7–8)
+    the same peak in the frame of a normal tilted by (Δθ, Δφ0), with the sample turned by φ_ref:
+    the ``rotated`` combinator around a ``small2021-peak``.
+``small2021-diffraction`` (Eqs. 9–10, the Fraunhofer pattern of two stripes)
+    f = ρs3 cos²(2π a ȳ cosθi/(λ z̄)) sinc²(2 b ȳ cosθi/(λ z̄)) exp(−x̄²/c²),
+    x̄ = R sinθh cos(φh − φ_ref + π), ȳ = R sinθh sin(φh − φ_ref + π), z̄ = R,
+    sinc(x) = sin(πx)/(πx). a (bar spacing), b (bar width) and λ are lengths in metres; x̄, ȳ,
+    z̄ and c are in the units of R. R cancels in cos² and sinc² but **not** in the Gaussian, so
+    it is an explicit parameter: R = 1 (the unit sphere) by default; the paper's detector
+    distance, printed as "approximately 0.325 cm" (0.325 m is likely meant), would triple the
+    band's width. The π in Eq. 10 (the paper measures azimuths from −x̂) only flips the signs of
+    x̄ and ȳ, which the even functions of Eq. 9 do not see. The cosθi factors make the term
+    **not reciprocal**: it declares so. Its albedo grows with ρs3 and R and is not bounded
+    (ρs3 = 300 is a magnitude fit, not a reflectance), so it claims no energy conservation;
+    for a narrow band it is close to ρs3 c √π λ cosθi / (b R) (0.0013 at 20°, 0.0007 at 60°).
+
+Conventions: brdftab's frame is the paper's. The source lies in the −x half-plane for the
+paper's geometry (φi = 180°: the in-plane forward-scatter direction is +x̂, "to the right",
+and +ŷ is out of plane, "down" in the paper's figures); Δφ0 and φ_ref are measured from +x
+towards +y, right-handed. φh is the azimuth of the half vector in that frame. The index n̂ is
+n + ik (the paper's n − ik; |q|² is the same).
+
+The paper's printed values are reproduced (tests, each within 1 %): the full model's value at
+the exact specular direction (center peak plus the diffraction zeroth order ρs3) 1.11e4 sr⁻¹ at
+θi = 20° and 3.91e4 at 60°; the offset-peak maximum 4.44e4 at 20° (θs ≈ 20.72°, φs ≈ +1.87°
+from the specular azimuth) and 4.19e5 at 60°; diffraction orders ρs3·sinc²(k b/a): 300 at the
+center falling to ≈ 209 at k = 26, spaced λ/a apart in direction-cosine space.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..brdf import Model
+from ..params import REQUIRED, Param
+from ..quadrature import gauss_legendre
+from . import components as C
+from .combinators import Rotated, Sum
+from .lambert import Lambert
+from .rayleigh_rice import q_sum
+
+__all__ = ["Small2021Peak", "Small2021Diffraction", "SolarCellSmall2021"]
+
+
+def _peak_params(suffix="", m=REQUIRED, rho=REQUIRED, n=REQUIRED):
+    return (
+        Param(f"m{suffix}", "float", "Beckmann width m of the peak (rms slope).", default=m, minimum=1e-6,
+              maximum=1.0),
+        Param(f"rho_s{suffix}", "channel", "Weight ρs of the peak.", default=rho, minimum=0.0),
+        Param(f"n{suffix}", "channel", "Real part of the index n + ik inside Q.", default=n, minimum=0.0,
+              exclusive_minimum=True),
+        Param(f"k{suffix}", "channel", "Imaginary part k (>= 0) of the index inside Q.", default=0.0, minimum=0.0),
+    )
+
+
+class Small2021Peak(Model):
+    name = "small2021-peak"
+    summary = "Small et al. 2021 Eq. 6: ρs Q/(2(cosθi + cosθs)²) · Beckmann D(m), Q the plain Rayleigh–Rice sum."
+    reference = "Small2021; Stover2012"
+    params = _peak_params()
+
+    def _setup(self, m, rho_s, n, k):
+        self.m = m
+        self.rho_s, self.n, self.k = rho_s, n, k
+        self.dist = C.create("distribution", "beckmann", alpha=m)
+        from ..channels import combine_layouts
+
+        self.layout = combine_layouts([rho_s.layout, n.layout, k.layout])
+
+    @property
+    def lobe_width(self) -> float:
+        return self.m
+
+    def _eval(self, wi, wo, lam, n):
+        h = wi + wo
+        h /= np.linalg.norm(h, axis=-1, keepdims=True)
+        eta = np.broadcast_to(np.asarray(self.n.at(lam, n), float), (n,))
+        kap = np.broadcast_to(np.asarray(self.k.at(lam, n), float), (n,))
+        q = q_sum(wi[:, None, :], wo[:, None, :], eta[None, :], kap[None, :])
+        base = self.dist.D(h) / (2.0 * (wi[:, 2] + wo[:, 2]) ** 2)
+        return np.asarray(self.rho_s.at(lam, n), float) * q * base[:, None]
+
+
+class Small2021Diffraction(Model):
+    name = "small2021-diffraction"
+    summary = ("Small et al. 2021 Eqs. 9–10: two-stripe Fraunhofer band ρs3 cos²·sinc²·exp(−x̄²/c²) in half-vector "
+               "coordinates (not reciprocal).")
+    reference = "Small2021; Goodman2005"
+    params = (
+        Param("a", "float", "Bar spacing a.", units="m", default=8e-4, minimum=1e-9, maximum=1.0),
+        Param("b", "float", "Bar width b.", units="m", default=1e-5, minimum=1e-9, maximum=1.0),
+        Param("c", "float", "Gaussian width c of the band across the bars (units of R).", default=4e-5,
+              minimum=1e-9, maximum=10.0),
+        Param("rho_s", "float", "Magnitude ρs3 of the pattern (its zeroth-order peak value, sr⁻¹).", default=300.0,
+              minimum=0.0),
+        Param("R", "float", "Radius R of Eq. 10 (units of c; 1: the unit sphere).", default=1.0, minimum=1e-6,
+              maximum=1e3),
+        Param("wavelength_nm", "float", "Wavelength λ of model.eval(wi, wo) without wavelengths.", units="nm",
+              default=632.8, minimum=1.0, maximum=1e6),
+        Param("phi_ref", "float", "φ_ref: orientation of the bars about the normal, from +x towards +y.",
+              units="rad", default=0.0, minimum=float(-2 * np.pi), maximum=float(2 * np.pi), angle=True),
+    )
+    reciprocal = False
+    isotropic = False
+
+    def _setup(self, a, b, c, rho_s, R, wavelength_nm, phi_ref):
+        self.a, self.b, self.c, self.rho_s, self.R = a, b, c, rho_s, R
+        self.wavelength_nm = wavelength_nm
+        self.phi_ref = phi_ref
+        self.e1 = np.array([np.cos(phi_ref), np.sin(phi_ref), 0.0])    # along the bars (x̄ = −R h·e1)
+        self.e2 = np.array([-np.sin(phi_ref), np.cos(phi_ref), 0.0])   # across the bars (ȳ = −R h·e2)
+
+    @property
+    def lobe_width(self) -> float:
+        # the band's Gaussian half-width in sinθh (across its length)
+        return min(self.c / self.R, 1.0)
+
+    def _lambda_m(self, lam, n):
+        return (np.full(1, self.wavelength_nm) if lam is None else np.asarray(lam, float)) * 1e-9
+
+    def coordinates(self, wi, wo):
+        """(x̄, ȳ, z̄) of Eq. 10 for pairs ``wi``, ``wo[..., 3]`` (units of R)."""
+        h = np.asarray(wi, float) + np.asarray(wo, float)
+        h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+        return -self.R * (h @ self.e1), -self.R * (h @ self.e2), np.full(h.shape[:-1], self.R)
+
+    def _eval(self, wi, wo, lam, n):
+        xb, yb, zb = self.coordinates(wi, wo)
+        lm = self._lambda_m(lam, n)[None, :]
+        u = (yb / zb * wi[:, 2])[:, None] / lm
+        f = np.cos(2 * np.pi * self.a * u) ** 2 * np.sinc(2 * self.b * u)
+        f = f * np.sinc(2 * self.b * u) * np.exp(-(xb / self.c) ** 2)[:, None]
+        return self.rho_s * f
+
+    def albedo_rule(self, wi, wavelengths=None):
+        """Outgoing quadrature resolved on the band (a hint for :mod:`brdftab.integrate`).
+
+        In half-vector coordinates across (y) and along (x) the bars, (h·e2, h·e1) on the unit
+        disk, dωo = 4 (wo·h) dx dy / h_z. Along x: Gauss–Hermite nodes on the Gaussian of width
+        c/R (Gauss–Legendre over the disk when the band is wide). Across y the cos² fringes
+        (period P = λ/(2a cosθi)) are integrated exactly by node pairs P/2 apart (cos²u +
+        cos²(u + π/2) = 1), the sinc² envelope (zeros every w = λ/(2b cosθi)) by Gauss–Legendre
+        panels of w/4 out to 8w, and beyond that, where sinc² oscillates too, by node quads
+        (pairs P/2 and w/2 apart) on graded panels to the rim. Exact to the envelope's curvature
+        over P/2 at the wavelength the rule is built for (the model's, or the one given).
+        """
+        wi = np.asarray(wi, float).reshape(3)
+        lam_nm = self.wavelength_nm if wavelengths is None else float(np.atleast_1d(wavelengths)[0])
+        lam = lam_nm * 1e-9
+        ci = max(float(wi[2]), 1e-12)
+        P = lam / (2 * self.a * ci)
+        w = lam / (2 * self.b * ci)
+        # across the bars
+        xg, wg = gauss_legendre(6, 0.0, 1.0)
+        near = min(8 * w, 1.0)
+        e = np.arange(0.0, near + 1e-15, w / 4)
+        e = np.unique(np.append(e[e < near], near))
+        y1 = (e[:-1, None] + np.diff(e)[:, None] * xg).ravel()
+        v1 = (np.diff(e)[:, None] * wg).ravel()
+        ys, vs = [y1[:, None] + np.array([-P / 4, P / 4])], [np.repeat(v1[:, None] / 2, 2, axis=1)]
+        if near < 1.0:
+            ef = np.unique(np.append(near * 1.5 ** np.arange(0, 40), 1.0))
+            ef = ef[ef <= 1.0]
+            y2 = (ef[:-1, None] + np.diff(ef)[:, None] * xg).ravel()
+            v2 = (np.diff(ef)[:, None] * wg).ravel()
+            d = np.array([-P / 4 - w / 4, -P / 4 + w / 4, P / 4 - w / 4, P / 4 + w / 4])
+            ys.append(y2[:, None] + d)
+            vs.append(np.repeat(v2[:, None] / 4, 4, axis=1))
+        y = np.concatenate([a.ravel() for a in ys])
+        vy = np.concatenate([a.ravel() for a in vs])
+        y = np.concatenate([y, -y])
+        vy = np.concatenate([vy, vy])
+        # along the bars
+        s = self.c / self.R
+        if s < 0.05:
+            t, wt = np.polynomial.hermite.hermgauss(12)
+            x, vx = s * t, s * wt * np.exp(t * t)
+        else:
+            x, vx = gauss_legendre(96, -1.0, 1.0)
+        X, Y = np.meshgrid(x, y, indexing="ij")
+        W = vx[:, None] * vy[None, :]
+        r2 = X * X + Y * Y
+        keep = r2 < 1.0
+        X, Y, W = X[keep], Y[keep], W[keep]
+        hz = np.sqrt(1.0 - X * X - Y * Y)
+        h = X[:, None] * self.e1 + Y[:, None] * self.e2 + hz[:, None] * np.array([0.0, 0.0, 1.0])
+        c = h @ wi
+        wo = 2.0 * c[:, None] * h - wi
+        weight = W * 4.0 * c / hz
+        ok = (c > 0) & (wo[:, 2] > 1e-12)
+        return wo[ok], weight[ok]
+
+
+def _solar_params():
+    return (
+        *_peak_params("1", m=2e-4, rho=0.015, n=3.6),
+        *_peak_params("2", m=2e-4, rho=0.7, n=1.4),
+        Param("tilt", "float", "Δθ: tilt of the offset peak's normal.", units="rad", default=float(np.radians(0.5)),
+              minimum=0.0, maximum=float(np.radians(89.0)), angle=True),
+        Param("tilt_azimuth", "float", "Δφ0: azimuth of that tilt, from +x towards +y.", units="rad",
+              default=float(np.radians(45.0)), minimum=float(-2 * np.pi), maximum=float(2 * np.pi), angle=True),
+        *(p for p in Small2021Diffraction.params if p.name != "rho_s"),
+        Param("rho_s3", "float", "Magnitude ρs3 of the diffraction pattern (sr⁻¹).", default=300.0, minimum=0.0),
+        Param("rho_d", "channel", "Diffuse reflectance ρd of an optional Lambertian term ρd/π.", default=0.0,
+              minimum=0.0, maximum=1.0),
+    )
+
+
+class SolarCellSmall2021(Model):
+    name = "solar-cell-small2021"
+    summary = ("Small et al. 2021 solar cell: center peak (Eq. 6) + offset peak in a tilted frame (Eqs. 7–8) + "
+               "two-stripe diffraction (Eqs. 9–10) + optional ρd/π; defaults are the paper's §4.4.1 values.")
+    reference = "Small2021"
+    params = _solar_params()
+
+    def _setup(self, m1, rho_s1, n1, k1, m2, rho_s2, n2, k2, tilt, tilt_azimuth, a, b, c, R, wavelength_nm,
+               phi_ref, rho_s3, rho_d):
+        self.center = Small2021Peak(m=m1, rho_s=rho_s1, n=n1, k=k1)
+        self.offset = Rotated(term=Small2021Peak(m=m2, rho_s=rho_s2, n=n2, k=k2), tilt=tilt,
+                              tilt_azimuth=tilt_azimuth, phi_ref=phi_ref)
+        self.diffraction = Small2021Diffraction(a=a, b=b, c=c, rho_s=rho_s3, R=R, wavelength_nm=wavelength_nm,
+                                                phi_ref=phi_ref)
+        terms = [self.center, self.offset, self.diffraction]
+        if np.any(rho_d.values > 0):
+            terms.append(Lambert(albedo=rho_d))
+        self.terms = terms
+        self._sum = Sum(terms=terms)
+        self.layout = self._sum.layout
+        self.isotropic = False
+        self.reciprocal = False      # the diffraction term's cosθi factors
+        self.energy_conserving = False
+
+    @property
+    def lobe_width(self) -> float:
+        return self._sum.lobe_width
+
+    def quadrature_parts(self):
+        return list(self.terms)
+
+    def _eval(self, wi, wo, lam, n):
+        return self._sum._eval(wi, wo, lam, n)
