@@ -42,6 +42,9 @@ REFERENCES = {
                      "Monograph 160 (1977).",
     "Rusinkiewicz1998": "S. M. Rusinkiewicz, \"A new change of variables for efficient BRDF representation\", "
                         "Eurographics Workshop on Rendering (1998).",
+    "SCATMECH2021": "T. A. Germer, SCATMECH: Polarized Light Scattering C++ Class Library, NIST, version 7.22 "
+                    "(2021), ZernikeExpansion_BRDF_Model (code/zernikeexpansion.cpp, docs/zernikeexpansion.htm), "
+                    "https://github.com/usnistgov/SCATMECH.",
     "Schlick1994": "C. Schlick, \"An inexpensive BRDF model for physically-based rendering\", CGF 13(3) (1994).",
     "Small2021": "T. V. Small, S. D. Butler, M. A. Marciniak, \"Solar cell BRDF measurement and modeling with "
                  "out-of-plane data\", Opt. Express 29, 35501 (2021).",

@@ -27,6 +27,10 @@ Layout::
 Combinators nest: ``name = "sum"`` with ``[[model.terms]]`` tables; ``name = "scale"`` with
 ``factor`` and a ``[model.term]`` table.
 
+A parameter that names a file (``coefficients = "ptfe.coeff.csv"`` of ``zernike-expansion``) is
+read relative to the spec's folder; the model lists it in ``input_files``, so no output may
+overwrite it.
+
 Everything is checked strictly: an unknown key, unknown model, missing, mistyped or
 out-of-range value raises :class:`~brdftab.errors.SpecError` with one line naming the file,
 the key and what is expected.
@@ -235,6 +239,8 @@ def build_model(table, where: str, path) -> BRDF:
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise _fail(path, f"{where}.{key}", f"expected an angle in degrees, got {value!r}")
             value = math.radians(value)
+        elif hasattr(p.kind_object, "from_spec"):  # a file parameter: relative to the spec's folder
+            value = p.kind_object.from_spec(p, value, Path(path).parent)
         kwargs[p.name] = value
     try:
         return cls(**kwargs)

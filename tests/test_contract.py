@@ -8,6 +8,7 @@ energy conservation. Two deliberately broken toy models prove the contract can f
 """
 
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -20,7 +21,10 @@ from brdftab.params import REQUIRED, Param
 from brdftab.integrate import directional_albedo
 
 N_CONFIGS = 6
-
+_ROOT = Path(__file__).resolve().parents[1]
+#: Coefficient files for parameters of kind zernike-coefficients.
+_COEFFICIENT_FILES = (_ROOT / "specs" / "ptfe-synthetic.coeff.csv",
+                      _ROOT.parent / "shared" / "data" / "ptfe" / "PTFE.coeff.csv")
 
 
 def _draw_value(p: Param, rng, depth):
@@ -45,6 +49,8 @@ def _draw_value(p: Param, rng, depth):
         return _leaf(rng)
     if p.kind == "brdfs":
         return [_leaf(rng) for _ in range(int(rng.integers(1, 3)))]
+    if p.kind == "zernike-coefficients":  # the shipped synthetic file or Germer's PTFE fit (shared data)
+        return str(_COEFFICIENT_FILES[int(rng.integers(len(_COEFFICIENT_FILES)))])
     raise AssertionError(f"the contract test cannot draw parameter kind {p.kind!r}: teach it")
 
 

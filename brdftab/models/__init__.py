@@ -16,6 +16,7 @@ from .lambert import Lambert
 from .microfacet import Microfacet
 from .small2021 import Small2021Diffraction, Small2021Peak, SolarCellSmall2021
 from .torrance_sparrow import TorranceSparrow1967
+from .zernike import ZernikeExpansion
 
 __all__ = ["MODELS", "create", "register", "get"]
 
@@ -30,7 +31,7 @@ def register(cls):
 
 
 for _cls in (Lambert, Microfacet, Sum, Scale, Average, Rotated, TorranceSparrow1967, Small2021Peak,
-             Small2021Diffraction, SolarCellSmall2021):
+             Small2021Diffraction, SolarCellSmall2021, ZernikeExpansion):
     register(_cls)
 
 

@@ -1,0 +1,434 @@
+"""Zernike-polynomial BRDF expansion (SCATMECH ``ZernikeExpansion_BRDF_Model``), unpolarized f_r,11.
+
+Koenderink and van Doorn [Koenderink1998] expand a reciprocal, isotropic BRDF in products of
+Zernike polynomials on the Lambert azimuthal equal-area map of the hemisphere onto the unit
+disk, ρ = √2 sin(θ/2). Germer [Germer2017] fitted the full Mueller-matrix BRDF of sintered PTFE
+with this basis; SCATMECH [SCATMECH2021] evaluates it from a coefficient file. This model is
+the unpolarized element (``zernikeexpansion.cpp``, ``mueller()``)::
+
+    f_r,11 = r(λ) Σ_rows a λ^p (1/2π) [(n+1)(m+1)/A]^½ [R_n^l(ρi) R_m^l(ρr) + R_m^l(ρi) R_n^l(ρr)] cos(l Δφ)
+
+over the rows of the file with i = j = 1, where
+
+* R_n^l is the radial Zernike polynomial (R_n^l(1) = 1; 0 when n − |l| is odd or |l| > n);
+* A = 4 if n = 0 or (n = m and l = 0), else 2 if n = m or l = 0, else 1 — evaluated, as in
+  SCATMECH, on the file's n (column 3);
+* λ is the wavelength in µm and λ^p is a true power (SCATMECH's code computes λ² for p = 3,
+  a bug not reproduced here; Germer's files only use p ∈ {0, 1});
+* r(λ) is the parameter ``scale`` (SCATMECH's name; "usually the diffuse reflectance");
+* **azimuth convention**: SCATMECH sets φi = π − rotation and φr = φs − rotation, so
+  Δφ = φr − φi = φs − π with SCATMECH's φs = 0 on the specular (forward) side. In brdftab's
+  convention (wi and wo both point away from the surface, azimuths φ_wi, φ_wo, mirror direction
+  at φ_wo = φ_wi + π) φs = φ_wo − φ_wi − π, so Δφ = φ_wo − φ_wi − 2π ≡ φ_wo − φ_wi: cos(l Δφ)
+  is computed from the angle between the projections of wi and wo on the surface (backscatter
+  at Δφ = 0, specular at Δφ = π). Using φs itself for Δφ flips every odd-l term.
+
+Coefficient file
+----------------
+Eight comma- or whitespace-separated columns per line, ``i, j, n, m, k, l, p, a`` (Mueller
+indices, radial orders, azimuthal orders, power of λ, coefficient); blank lines are skipped and
+``;`` starts a comment, as in SCATMECH's reader. For the 11 rows the code uses **column 6 (l)**
+as the azimuthal order of both radial orders and of cos(lΔφ), and ignores column 5; for the
+other rows (which this unpolarized model reads and checks but does not evaluate) column 5 goes
+with column 3 and column 6 with column 4. Each line is checked; a bad line (wrong column count,
+a non-numeric or non-integer field, a non-finite coefficient, i or j outside 1…4, i > j, a
+negative radial order, or an odd n − l / m − l (11 rows) or n − k / m − l (other rows), which
+makes the term identically zero) is one error naming the file and the line. |l| > n is allowed:
+Germer's ``PTFE.coeff.csv`` has 60 such off-diagonal rows, whose R_n^l is 0 in SCATMECH too.
+
+Wavelength
+----------
+The model is grey (one channel, ``mono``) but depends on λ through λ^p and ``scale``:
+``eval(wi, wo)`` evaluates at ``wavelength_nm``; ``eval(wi, wo, wavelengths=[...])`` once per
+requested wavelength. A wavelength outside the coefficients' fitted range
+[``fit_min_nm``, ``fit_max_nm``] (Germer's files: 351–1064 nm, the defaults) gives one
+:class:`~brdftab.errors.BrdftabWarning` per wavelength.
+
+Negative values: clamped
+------------------------
+A truncated expansion can go negative: Germer's ``PTFE.coeff.csv`` at 1064 nm reaches
+−0.22 sr⁻¹ near grazing. A BRDF cannot be negative, and brdftab's tables must not be, so this
+model returns max(expansion, 0). It reports the clamping twice: once per wavelength, a
+:class:`~brdftab.errors.BrdftabWarning` from a scan of (θi, θr, Δφ) giving how many scanned pairs
+are negative and the lowest value; and in the counters ``clamped`` / ``evaluated`` (values
+clamped / values evaluated by this instance). :meth:`ZernikeExpansion.expansion` returns the
+unclamped sum, as SCATMECH does. Clamping keeps the model reciprocal and isotropic.
+
+Accuracy against measurement
+----------------------------
+With Germer's ``PTFE.coeff.csv`` (scale 1) at 532 nm, against his measured f_r,11 at 532 nm
+(``PTFE.data.csv``, 1824 directions, θi = 0…75°), the rms log error is 2.2 % (median ratio model /
+measured 1.019); the same comparison with the source azimuth taken as 0° instead of 180° (the
+convention error) gives 11.5 %. The directional albedo is 0.9999 / 1.0024 / 1.0063 at θi = 0° /
+30° / 60° (tests/test_zernike.py measures all of these).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+import re
+import warnings
+from pathlib import Path
+
+import numpy as np
+from scipy.special import eval_jacobi
+
+from ..brdf import Model
+from ..channels import Layout
+from ..errors import BrdftabWarning, ParameterError
+from ..geometry import as_directions
+from ..params import Kind, Param, register_kind
+
+__all__ = ["ZernikeExpansion", "ZernikeCoefficients", "radial_zernike", "CoefficientFileKind"]
+
+#: Column names of a coefficient file, in order.
+COLUMNS = ("i", "j", "n", "m", "k", "l", "p", "a")
+_SEP = re.compile(r"[\s,]+")
+_INT = re.compile(r"^[+-]?[0-9]+$")
+
+
+def radial_zernike(n: int, l: int, rho) -> np.ndarray:
+    """Radial Zernike polynomial R_n^l(ρ) (R_n^l(1) = 1), 0 when n − |l| is odd or |l| > n.
+
+    Evaluated as (−1)^s ρ^|l| P_s^(|l|, 0)(1 − 2ρ²), s = (n − |l|)/2 (a Jacobi polynomial,
+    stable for any order) — the same polynomial as SCATMECH's factorial sum.
+    """
+    rho = np.asarray(rho, float)
+    l = abs(int(l))
+    n = int(n)
+    if n < l or (n - l) % 2:
+        return np.zeros_like(rho)
+    s = (n - l) // 2
+    return (-1.0) ** s * rho ** l * eval_jacobi(s, l, 0.0, 1.0 - 2.0 * rho * rho)
+
+
+def _a_factor(n: int, m: int, l: int) -> float:
+    """SCATMECH's A_nm^l: 4 if n = 0 or (n = m and l = 0), 2 if n = m or l = 0, else 1."""
+    if n == 0 or (n == m and l == 0):
+        return 4.0
+    if n == m or l == 0:
+        return 2.0
+    return 1.0
+
+
+class ZernikeCoefficients:
+    """A parsed coefficient file: ``rows`` (int ``[N, 7]``: i, j, n, m, k, l, p), ``a`` ``[N]``,
+    the source ``lines`` (1-based), the absolute ``path`` and its ``sha256``."""
+
+    def __init__(self, path: Path, rows: np.ndarray, a: np.ndarray, lines: np.ndarray, sha256: str):
+        self.path = path
+        self.rows = rows
+        self.a = a
+        self.lines = lines
+        self.sha256 = sha256
+        i, j, n, m, _k, l, p = rows.T
+        u = (i == 1) & (j == 1)
+        self._n, self._m, self._l, self._p = n[u], m[u], np.abs(l[u]), p[u]
+        self._a11 = a[u]
+        self._pre = np.array([0.5 / np.pi * math.sqrt((nn + 1.0) * (mm + 1.0) / _a_factor(nn, mm, ll))
+                              for nn, mm, ll in zip(self._n, self._m, l[u])])
+        # rows with the same (n, m, |l|) differ only in p: one term per key at a given λ
+        keys = np.stack([self._n, self._m, self._l], axis=1)
+        self._keys, self._key_of_row = np.unique(keys, axis=0, return_inverse=True)
+        self._key_of_row = self._key_of_row.ravel()
+
+    @property
+    def name(self) -> str:
+        return self.path.name
+
+    @property
+    def n_f11(self) -> int:
+        """Rows of the unpolarized element (i = j = 1)."""
+        return int(self._a11.size)
+
+    @classmethod
+    def load(cls, path, sha256: str | None = None) -> "ZernikeCoefficients":
+        """Read and check a coefficient file; errors are :class:`ParameterError` naming the
+        file (as given) and the line."""
+        shown = str(path)
+        try:
+            data = Path(path).read_bytes()
+        except FileNotFoundError:
+            raise ParameterError("coefficients", f"{shown}: no such coefficient file") from None
+        except IsADirectoryError:
+            raise ParameterError("coefficients", f"{shown}: is a folder, not a coefficient file") from None
+        except OSError as exc:
+            raise ParameterError("coefficients", f"{shown}: cannot read ({exc.strerror})") from None
+        digest = hashlib.sha256(data).hexdigest()
+        if sha256 is not None and sha256.lower() != digest:
+            raise ParameterError("coefficients", f"{shown}: content changed (sha256 {digest[:12]}…, expected "
+                                 f"{sha256[:12]}…)")
+        try:
+            text = data.decode("utf-8-sig")
+        except UnicodeDecodeError:
+            raise ParameterError("coefficients", f"{shown}: not a UTF-8 text coefficient file") from None
+        rows, coef, lines = [], [], []
+        for no, raw in enumerate(text.splitlines(), start=1):
+            body = raw.split(";", 1)[0].strip()
+            if not body:
+                continue
+            ints, a = _parse_line(body, lambda msg, no=no: ParameterError("coefficients", f"{shown}, line {no}: {msg}"))
+            rows.append(ints)
+            coef.append(a)
+            lines.append(no)
+        if not rows or not any(r[0] == 1 and r[1] == 1 for r in rows):
+            raise ParameterError("coefficients", f"{shown}: no rows for the unpolarized element (i = j = 1), "
+                                 "so f_r,11 would be 0")
+        return cls(Path(os.path.abspath(path)), np.array(rows, dtype=np.int64).reshape(-1, 7),
+                   np.array(coef, float), np.array(lines), digest)
+
+    def f11_terms(self, lam_um: float):
+        """``(keys[K, 3], c[K])``: the 11 terms at wavelength ``lam_um`` [µm], one per (n, m, |l|),
+        with c = Σ_p a λ^p (1/2π) [(n+1)(m+1)/A]^½."""
+        lam_pow = np.array([float(lam_um) ** int(p) for p in self._p])  # a true power (no p = 3 bug)
+        c = np.zeros(len(self._keys))
+        np.add.at(c, self._key_of_row, self._a11 * lam_pow * self._pre)
+        return self._keys, c
+
+    def to_json(self):
+        return {"path": str(self.path), "sha256": self.sha256}
+
+    def __repr__(self):
+        return f"ZernikeCoefficients({str(self.path)!r}, {len(self.a)} rows, {self.n_f11} for f_r,11)"
+
+
+def _parse_line(body: str, err):
+    fields = [t for t in _SEP.split(body) if t]
+    if len(fields) != 8:
+        raise err(f"expected 8 columns ({', '.join(COLUMNS)}), got {len(fields)}")
+    ints = []
+    for name, tok in zip(COLUMNS[:7], fields[:7]):
+        if not _INT.match(tok):
+            raise err(f"column {COLUMNS.index(name) + 1} ({name}) must be a whole number, got {tok!r}")
+        ints.append(int(tok))
+    try:
+        a = float(fields[7])
+    except ValueError:
+        raise err(f"column 8 (a) must be a number, got {fields[7]!r}") from None
+    if not math.isfinite(a):
+        raise err(f"column 8 (a) must be finite, got {fields[7]!r}")
+    i, j, n, m, k, l, p = ints
+    if not (1 <= i <= 4 and 1 <= j <= 4):
+        raise err(f"Mueller indices i, j must be 1 to 4, got i = {i}, j = {j}")
+    if i > j:
+        raise err(f"i > j (i = {i}, j = {j}): the file lists each pair once with i <= j")
+    if n < 0 or m < 0:
+        raise err(f"radial orders n, m (columns 3, 4) must be >= 0, got n = {n}, m = {m}")
+    if i == 1 and j == 1:  # column 6 is the azimuthal order of both radial orders
+        pairs = (("n", n, "l", l), ("m", m, "l", l))
+    else:  # column 5 goes with column 3, column 6 with column 4
+        pairs = (("n", n, "k", k), ("m", m, "l", l))
+    for rn, rv, an, av in pairs:
+        if (rv - av) % 2:
+            role = "the 11 rows use column 6 (l) for both radial orders" if (i, j) == (1, 1) else \
+                   "rows other than 11 pair column 5 (k) with n and column 6 (l) with m"
+            raise err(f"{rn} - {an} = {rv} - {av} is odd, so the term is identically zero ({role})")
+    return ints, a
+
+
+class CoefficientFileKind(Kind):
+    """A Zernike coefficient file: a path (relative to the current folder from Python, to the
+    spec's folder in a spec file), ``{path, sha256}`` (as provenance records it), or a loaded
+    :class:`ZernikeCoefficients`."""
+
+    name = "zernike-coefficients"
+
+    def expected(self, p):
+        return "the path of a coefficient file (8 columns i, j, n, m, k, l, p, a)"
+
+    def convert(self, p, value):
+        if isinstance(value, ZernikeCoefficients):
+            return value
+        sha = None
+        if isinstance(value, dict):
+            extra = set(value) - {"path", "sha256"}
+            if extra or "path" not in value or not isinstance(value.get("sha256", ""), str):
+                raise ParameterError(p.name, f"expected {self.expected(p)} or {{path, sha256}}")
+            value, sha = value["path"], value.get("sha256")
+        if isinstance(value, os.PathLike):
+            value = os.fspath(value)
+        if not isinstance(value, str) or not value or "\x00" in value:
+            raise ParameterError(p.name, f"expected {self.expected(p)}, got {value!r}")
+        try:
+            return ZernikeCoefficients.load(value, sha)
+        except ParameterError as exc:
+            raise ParameterError(p.name, exc.detail) from None
+
+    def from_spec(self, p, value, folder: Path):
+        """A spec's relative path resolves against the spec's folder."""
+        if isinstance(value, str) and value and not Path(value).is_absolute():
+            return str(folder / value)
+        if isinstance(value, dict) and isinstance(value.get("path"), str) and not Path(value["path"]).is_absolute():
+            return {**value, "path": str(folder / value["path"])}
+        return value
+
+    def to_json(self, value):
+        return value.to_json()
+
+
+register_kind(CoefficientFileKind())
+
+#: The negativity scan: θi, θr [deg] and Δφ [deg] (Δφ ↔ −Δφ is a symmetry of f_r,11).
+_SCAN_THETA = np.concatenate([np.arange(0.0, 89.0, 1.5), [89.0, 89.5, 89.9]])
+_SCAN_DPHI = np.linspace(0.0, 180.0, 25)
+
+
+class ZernikeExpansion(Model):
+    """SCATMECH's ZernikeExpansion_BRDF_Model, f_r,11 (see the module docstring)."""
+
+    name = "zernike-expansion"
+    summary = ("Zernike-polynomial expansion of a reciprocal isotropic BRDF from a coefficient file "
+               "(SCATMECH ZernikeExpansion_BRDF_Model, f_r,11; Germer's sintered PTFE).")
+    reference = "Koenderink1998; Germer2017; SCATMECH2021"
+    params = (
+        Param("coefficients", "zernike-coefficients",
+              "Coefficient file, 8 columns i, j, n, m, k, l, p, a (SCATMECH layout; λ in µm). In a spec, "
+              "relative to the spec's folder."),
+        Param("wavelength_nm", "float", "Wavelength evaluated when no wavelengths are requested.", units="nm",
+              default=532.0, minimum=0.0, exclusive_minimum=True),
+        Param("scale", "channel", "r(λ): factor of the whole expansion (SCATMECH 'scale'); a number or a "
+              "spectrum {wavelengths_nm, values}.", default=1.0, minimum=0.0),
+        Param("fit_min_nm", "float", "Shortest wavelength the coefficients were fitted at (warning below).",
+              units="nm", default=351.0, minimum=0.0, exclusive_minimum=True),
+        Param("fit_max_nm", "float", "Longest wavelength the coefficients were fitted at (warning above).",
+              units="nm", default=1064.0, minimum=0.0, exclusive_minimum=True),
+    )
+    isotropic = True
+    reciprocal = True
+    #: A fitted expansion does not guarantee albedo <= 1 (PTFE.coeff.csv: ~1.005 at 30°).
+    energy_conserving = False
+
+    def _setup(self, coefficients, wavelength_nm, scale, fit_min_nm, fit_max_nm):
+        if scale.kind == "channels":
+            raise ParameterError("scale", "expected one number or a spectrum {wavelengths_nm, values}: the "
+                                 f"model is grey, got {scale.values.size} channel values")
+        if fit_min_nm > fit_max_nm:
+            raise ParameterError("fit_min_nm", f"must not exceed fit_max_nm ({fit_min_nm:g} > {fit_max_nm:g})")
+        self.coefficients = coefficients
+        self.wavelength_nm = wavelength_nm
+        self.scale = scale
+        self.fit_range_nm = (fit_min_nm, fit_max_nm)
+        self.layout = Layout()
+        self.input_files = (coefficients.path,)
+        #: Values clamped to 0 (negative expansion) and values evaluated, by this instance.
+        self.clamped = 0
+        self.evaluated = 0
+        self._terms = {}
+        self._checked = set()
+        self._scale_at(np.array([wavelength_nm]))  # a spectral scale must cover wavelength_nm
+        self._check_wavelengths([wavelength_nm])
+
+    # -- per-wavelength data -------------------------------------------------------------
+
+    def _scale_at(self, lam_nm):
+        if self.scale.kind == "spectral":
+            return self.scale.at(lam_nm, lam_nm.size)
+        return np.full(lam_nm.size, float(self.scale.values[0]))
+
+    def _f11_terms(self, lam_nm: float):
+        t = self._terms.get(lam_nm)
+        if t is None:
+            if len(self._terms) > 64:
+                self._terms.clear()
+            t = self._terms[lam_nm] = self.coefficients.f11_terms(lam_nm / 1000.0)
+        return t
+
+    def _check_wavelengths(self, lam_nm):
+        """Warn once per wavelength: outside the fitted range; expansion negative somewhere."""
+        for lam in np.unique(np.asarray(lam_nm, float)):
+            lam = float(lam)
+            if lam in self._checked:
+                continue
+            self._checked.add(lam)
+            lo, hi = self.fit_range_nm
+            if not lo <= lam <= hi:
+                warnings.warn(f"zernike-expansion: {lam:g} nm is outside the wavelength range the coefficients of "
+                              f"{self.coefficients.name} were fitted over ({lo:g}-{hi:g} nm): an extrapolation",
+                              BrdftabWarning, stacklevel=3)
+            count, total, lowest, where = self.negative_scan(lam)
+            if count:
+                warnings.warn(f"zernike-expansion: {self.coefficients.name} at {lam:g} nm is negative at {count} of "
+                              f"{total} scanned direction pairs (lowest {lowest:.3g} sr-1 at θi = {where[0]:g}°, "
+                              f"θr = {where[1]:g}°, Δφ = {where[2]:g}°); negative values are clamped to 0",
+                              BrdftabWarning, stacklevel=3)
+
+    def negative_scan(self, wavelength_nm: float):
+        """Scan the expansion (scale included) over θi, θr ∈ 0…89.9° (1.5° steps, then 89°, 89.5°,
+        89.9°) and Δφ ∈ 0…180° (7.5° steps), 63 × 63 × 25 pairs. Returns ``(negative count,
+        total, lowest value, (θi, θr, Δφ) [deg] of the lowest)``."""
+        ti, tr, dp = np.meshgrid(np.radians(_SCAN_THETA), np.radians(_SCAN_THETA), np.radians(_SCAN_DPHI),
+                                 indexing="ij")
+        wi = np.stack([np.sin(ti), np.zeros_like(ti), np.cos(ti)], axis=-1).reshape(-1, 3)
+        wo = np.stack([np.sin(tr) * np.cos(dp), np.sin(tr) * np.sin(dp), np.cos(tr)], axis=-1).reshape(-1, 3)
+        f = self._expansion(wi, wo, np.array([float(wavelength_nm)]))[:, 0]
+        neg = f < 0
+        k = int(np.argmin(f))
+        where = (float(np.degrees(ti.ravel()[k])), float(np.degrees(tr.ravel()[k])), float(np.degrees(dp.ravel()[k])))
+        return int(neg.sum()), int(f.size), float(f[k]) if neg.any() else 0.0, where
+
+    # -- evaluation ----------------------------------------------------------------------
+
+    def _expansion(self, wi, wo, lam_nm) -> np.ndarray:
+        """The unclamped f_r,11 at ``(M, 3)`` unit pairs for wavelengths ``lam_nm`` [nm]: ``(M, n)``."""
+        si = np.hypot(wi[:, 0], wi[:, 1])
+        so = np.hypot(wo[:, 0], wo[:, 1])
+        # ρ = √2 sin(θ/2) = sinθ / √(1 + cosθ) (no cancellation near the normal)
+        rho_i = si / np.sqrt(1.0 + wi[:, 2])
+        rho_o = so / np.sqrt(1.0 + wo[:, 2])
+        # cos Δφ with Δφ = φ_wo − φ_wi ≡ SCATMECH's φs − π (module docstring); symmetric in wi ↔ wo
+        # bit for bit. At the normal (s = 0) every l ≠ 0 term has R_n^l(0) = 0: any value will do.
+        den = si * so
+        with np.errstate(invalid="ignore", divide="ignore"):
+            c = np.where(den > 0, (wi[:, 0] * wo[:, 0] + wi[:, 1] * wo[:, 1]) / den, 1.0)
+        c = np.clip(c, -1.0, 1.0)
+        keys = self.coefficients._keys
+        radial_i, radial_o = {}, {}
+        for n, m, l in keys:
+            for r in (n, m):
+                if (r, l) not in radial_i:
+                    radial_i[(r, l)] = radial_zernike(r, l, rho_i)
+                    radial_o[(r, l)] = radial_zernike(r, l, rho_o)
+        # cos(l Δφ) = T_l(cos Δφ), Chebyshev recurrence
+        cheb = [np.ones_like(c), c]
+        for _ in range(2, int(keys[:, 2].max()) + 1):
+            cheb.append(2.0 * c * cheb[-1] - cheb[-2])
+        scale = self._scale_at(lam_nm)
+        out = np.empty((wi.shape[0], lam_nm.size))
+        for col, lam in enumerate(lam_nm):
+            _, coef = self._f11_terms(float(lam))
+            total = np.zeros(wi.shape[0])
+            for (n, m, l), a in zip(keys, coef):
+                if a == 0.0:
+                    continue
+                # the symmetrized product: each term, hence the sum, is exactly reciprocal
+                total += a * (radial_i[(n, l)] * radial_o[(m, l)] + radial_i[(m, l)] * radial_o[(n, l)]) * cheb[l]
+            out[:, col] = scale[col] * total
+        return out
+
+    def _eval(self, wi, wo, lam, n):
+        lam_nm = np.array([self.wavelength_nm]) if lam is None else np.asarray(lam, float)
+        if lam is not None:
+            self._check_wavelengths(lam_nm)
+        f = self._expansion(wi, wo, lam_nm)
+        neg = f < 0
+        self.clamped += int(neg.sum())
+        self.evaluated += f.size
+        f[neg] = 0.0
+        return f
+
+    def expansion(self, wi, wo, wavelengths=None) -> np.ndarray:
+        """The unclamped expansion (SCATMECH's value, possibly negative) at unit directions
+        ``wi``, ``wo`` ``[..., 3]`` (0 at or below the horizon): ``[..., n]`` with n = 1 at
+        ``wavelength_nm`` or one per wavelength [nm]. Nothing is counted or clamped."""
+        wi, wo = as_directions(wi, wo)
+        lam_nm = np.array([self.wavelength_nm]) if wavelengths is None else np.atleast_1d(np.asarray(wavelengths,
+                                                                                                      float))
+        lead = wi.shape[:-1]
+        wi = wi.reshape(-1, 3)
+        wo = wo.reshape(-1, 3)
+        out = np.zeros((wi.shape[0], lam_nm.size))
+        above = (wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12)
+        out[above] = self._expansion(wi[above], wo[above], lam_nm)
+        return out.reshape(lead + (lam_nm.size,))
