@@ -15,7 +15,12 @@ Metadata every BRDF carries:
 * ``channels`` (names) or, for spectral BRDFs, ``wavelengths`` [nm] (see
   :mod:`brdftab.channels`);
 * ``isotropic`` (invariant under rotation about the normal) and ``reciprocal``
-  (f(wi, wo) = f(wo, wi)) as *declared* by the model; :mod:`brdftab.validate` checks them.
+  (f(wi, wo) = f(wo, wi)) as *declared* by the model; :mod:`brdftab.checks` checks them;
+* ``origin`` — where the values come from: ``"analytic"`` (a model, or a table of one),
+  ``"measured"`` (data), or ``"unknown"`` (a file that does not say). Recorded with every table
+  in the formats that can hold it and never re-derived from the values; the checks give
+  measured and unknown data the measured-data defaults (no reciprocity assumed unless
+  declared, negative samples reported, not refused).
 """
 
 from __future__ import annotations
@@ -27,7 +32,10 @@ from .errors import ParameterError
 from .geometry import as_directions
 from .params import Kind, parse_params, register_kind
 
-__all__ = ["BRDF", "Model", "EVAL_CHUNK"]
+__all__ = ["BRDF", "Model", "EVAL_CHUNK", "ORIGINS"]
+
+#: The values of :attr:`BRDF.origin`.
+ORIGINS = ("analytic", "measured", "unknown")
 
 #: Direction pairs evaluated at once by :meth:`BRDF.eval`.
 EVAL_CHUNK = 1 << 16
@@ -59,6 +67,8 @@ class BRDF:
     layout: Layout = Layout()
     isotropic: bool = True
     reciprocal: bool = True
+    #: "analytic", "measured" or "unknown" (see the module docstring).
+    origin: str = "analytic"
     #: Declared: directional albedo ≤ 1 for every incident direction (checked by the contract
     #: test and the energy check). Off unless a model says so.
     energy_conserving: bool = False

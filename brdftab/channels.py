@@ -20,7 +20,7 @@ import numpy as np
 
 from .errors import ParameterError
 
-__all__ = ["ChannelValue", "Layout", "default_channel_names", "combine_layouts"]
+__all__ = ["ChannelValue", "Layout", "default_channel_names", "combine_layouts", "luminance_weights", "RGB_LUMINANCE"]
 
 
 def default_channel_names(n: int) -> tuple[str, ...]:
@@ -209,3 +209,29 @@ def _numbers(seq):
     if isinstance(seq, (str, bytes, dict)) or not hasattr(seq, "__len__"):
         raise ValueError("expected a list of numbers")
     return [_real(x) for x in seq]
+
+
+#: Rec. 709 relative luminance weights of linear R, G, B.
+RGB_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+
+
+def luminance_weights(channels, lam=None) -> np.ndarray:
+    """Weights (summing to 1) that turn a channel axis into a relative luminance: Rec. 709 Y
+    for channels R, G, B, CIE 1931 ȳ for wavelengths ``lam`` [nm], the mean otherwise."""
+    if lam is None:
+        channels = tuple(channels or ())
+        return RGB_LUMINANCE.copy() if channels == ("R", "G", "B") else np.full(len(channels), 1.0 / len(channels))
+    lam = np.atleast_1d(np.asarray(lam, float))
+    w = _cie_y(lam)
+    return w / w.sum() if w.sum() > 0 else np.full(lam.size, 1.0 / lam.size)
+
+
+def _cie_y(lam):
+    """CIE 1931 ȳ(λ), multi-lobe Gaussian fit of Wyman, Sloan & Shirley, JCGT 2(2) (2013)."""
+    lam = np.asarray(lam, float)
+
+    def g(mu, s1, s2):
+        t = (lam - mu) / np.where(lam < mu, s1, s2)
+        return np.exp(-0.5 * t * t)
+
+    return 0.821 * g(568.8, 46.9, 40.5) + 0.286 * g(530.9, 16.3, 31.1)

@@ -23,7 +23,7 @@ import numpy as np
 
 from . import _atomic
 from ._version import __version__
-from .cli_validate import check_options, cli_layer, validate
+from .cli_validate import check_options, cli_layer, origin_option, validate
 from .errors import BrdftabError
 
 DEBUG_KEY = "brdftab.debug"
@@ -227,18 +227,22 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, levels, settings, progress
               help="Average IN into the target grid's symmetries when it has fewer (an anisotropic table on an "
                    "isotropic grid, a non-reciprocal one on a grid folded by reciprocity).")
 @click.option("--overwrite", is_flag=True, help="Replace OUT if it exists.")
-@click.option("--allow-invalid", is_flag=True, help="Write even if IN fails validation.")
+@click.option("--allow-invalid", is_flag=True,
+              help="Write OUT even if it fails validation (stamped validation_passed = 0).")
+@origin_option
 @check_options
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: on a terminal, for runs over 2 s).")
 @click.option("--json", "as_json", is_flag=True, help="Print what was done as JSON.")
-def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite, allow_invalid, levels, settings,
-            progress, as_json):
+def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite, allow_invalid, origin, levels,
+            settings, progress, as_json):
     """Convert the table file IN into OUT, in another format or on another grid.
 
-    IN is validated first (a failed check refuses with exit code 1 unless --allow-invalid).
-    A table already on the target grid is copied; otherwise it is resampled, and the maximum
-    and rms relative difference between OUT and IN at random direction pairs is reported.
+    IN's check results are reported (and carried in OUT's metadata) without refusing; what is
+    written is validated before it is written: an OUT that fails a check is refused with exit
+    code 1 and nothing written, unless --allow-invalid. A table already on the target grid is
+    copied; otherwise it is resampled (default grid: IN's own, or one that keeps IN's
+    symmetries), and the difference between OUT and IN is reported.
     """
     from . import convert as conv
 
@@ -263,7 +267,12 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
         checks = cli_layer(levels, settings)
     result = conv.convert(source, target, grid=grid, wavelengths=wavelengths, format=fmt, options=opts,
                           overwrite=overwrite, fold=fold, allow_invalid=allow_invalid, checks=checks,
-                          progress=progress, inputs=inputs)
+                          progress=progress, inputs=inputs, origin=origin)
+    if result.input_report is not None and result.input_report is not result.report:
+        for o in result.input_report.failures + result.input_report.warnings:
+            click.echo(f"brdftab: warning: input {source.name}: {o.status.upper()} {o.name}: {o.detail}", err=True)
+    for o in result.report.warnings:
+        click.echo(f"brdftab: warning: {o.name}: {o.detail}", err=True)
     for o in result.report.failures:
         click.echo(f"brdftab: warning: written despite a failed check: {o.name}: {o.detail}", err=True)
     if as_json:
@@ -287,6 +296,7 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
     if d is not None:
         click.echo(f"resampling error of f cosθi cosθo: rms relative {d.rms_rel:.3g}, max relative {d.max_rel:.3g} "
                    f"({d.points} check points, written table vs {'the averaged ' if result.folded else ''}input)")
+        click.echo(f"median relative error of f at θi, θo ≤ 80°: {d.median_rel:.3g}")
     elif result.note:
         click.echo(f"resampling error: not computed ({result.note})")
 

@@ -109,7 +109,15 @@ def _config_file(path: Path) -> dict:
     return layer
 
 
-def _check_one(path: Path, layers, progress):
+def origin_option(command):
+    """``--origin``: the user's word on where a table's values come from."""
+    return click.option("--origin", type=click.Choice(["analytic", "measured", "unknown"]), default=None,
+                        help="Where the input's values come from (default: what the file records; a file that "
+                             "records nothing is 'unknown'). Measured and unknown data are not assumed reciprocal "
+                             "and their negative samples are reported, not refused.")(command)
+
+
+def _check_one(path: Path, layers, progress, origin=None):
     """Reports for one input (a spec or a table file)."""
     import warnings
 
@@ -126,7 +134,7 @@ def _check_one(path: Path, layers, progress):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BrdftabWarning)
         table = formats.read(path)
-    return [run_checks(table, layers, subject=str(path))]
+    return [run_checks(table, layers, subject=str(path), origin=origin)]
 
 
 def list_checks() -> str:
@@ -157,8 +165,9 @@ def list_checks() -> str:
 @click.option("--list-checks", "list_checks_", is_flag=True,
               help="List the checks, their levels and thresholds, and exit.")
 @click.option("--progress/--no-progress", default=False, help="Progress bar while a spec is tabulated.")
+@origin_option
 @click.pass_context
-def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_checks_, progress):
+def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_checks_, progress, origin):
     """Check BRDF tables and specs: reciprocity, energy, albedo, sample audit, symmetry,
     conventions and tabulation error.
 
@@ -182,7 +191,7 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
     reports = []
     for path in inputs:
         try:
-            reports += _check_one(path, layers, progress)
+            reports += _check_one(path, layers, progress, origin)
         except BrdftabError as exc:
             errors.append((str(path), exc))
         except OSError as exc:

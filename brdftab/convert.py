@@ -6,19 +6,26 @@ format). The steps:
 1. the output is checked and claimed before any work (:func:`brdftab._atomic.claim`): it may
    not be the input (through links either), may not exist unless ``overwrite``, and may not be
    claimed by another run;
-2. the input is read and validated (:func:`brdftab.checks.run_checks`); a failed check
-   refuses the conversion (exit code 1) unless ``allow_invalid``;
-3. the target grid is the one asked for (``grid``), else the input's own, as the output
-   format stores it (:func:`brdftab.formats.target_grid`: MERL always stores the MERL grid);
+2. the input is read and checked (:func:`brdftab.checks.run_checks`); its findings do not
+   refuse the conversion: they travel with the output as the input's report (in the
+   report, and as ``input_validation_*`` attributes of a netCDF/EXR output);
+3. the target grid is the one asked for (``grid``); else one rule for every input
+   (:func:`default_grid`): the input's own brdftab grid, or for an input in a format's own
+   layout (an RGL ``.bsdf``) a Rusinkiewicz grid that keeps the input's symmetries — φh when
+   it is anisotropic, φd over the full turn — as the output format stores it (:func:`brdftab.formats.target_grid`: MERL always stores the MERL
+   grid);
 4. if the input has fewer symmetries than the target grid assumes (an anisotropic table onto
-   an isotropic grid, a non-reciprocal one onto a grid folded by reciprocity), it must be
-   averaged into them: refused unless ``fold`` is given, which averages over rotations about
-   the normal and/or over swapping wi and wo;
+   an isotropic grid, one not known to be reciprocal onto a grid folded by reciprocity), it
+   must be averaged into them: refused unless ``fold`` is given, which averages over
+   rotations about the normal and/or over swapping wi and wo;
 5. a table whose grid equals the target grid is copied; otherwise it is tabulated (resampled)
    on the target grid, and the conversion reports how far the written table is from the
    input at a few thousand random direction pairs in the written table's domain
    (:class:`Difference`);
-6. the output is written atomically (:func:`brdftab.formats.write`).
+6. **what is written is validated** before it is written: an output that fails a check is
+   refused (exit code 1, nothing written) unless ``allow_invalid``, which writes it with
+   ``validation_passed = 0``;
+7. the output is written atomically (:func:`brdftab.formats.write_prepared`).
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ import numpy as np
 
 from . import formats
 from ._atomic import check_target, claim, terminate_as_interrupt, write_progress
+from .brdf import BRDF
 from .models.combinators import Average
 from .errors import BrdftabError, ParameterError, ValidationError
 from .grids import Grid
@@ -42,8 +50,8 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["Conversion", "Difference", "InvalidSource", "convert", "grid_option", "grid_file", "format_option",
-           "difference", "check_points", "CHECK_POINTS", "PHI_H_SAMPLES"]
+__all__ = ["Conversion", "Difference", "InvalidOutput", "convert", "grid_option", "grid_file",
+           "format_option", "difference", "check_points", "default_grid", "CHECK_POINTS", "PHI_H_SAMPLES"]
 
 #: Random direction pairs at which a resampled table is compared with its source.
 CHECK_POINTS = 4096
@@ -52,10 +60,26 @@ CHECK_POINTS = 4096
 PHI_H_SAMPLES = 36
 
 
-class InvalidSource(ValidationError):
-    """The input table failed a validation check (``brdftab convert`` exits with 1)."""
+class InvalidOutput(ValidationError):
+    """What a conversion would write failed a validation check (exit code 1, nothing written)."""
 
     exit_code = 1
+
+
+def default_grid(source):
+    """The grid a conversion writes on when none is asked for — one rule for every input: the
+    source's own brdftab grid; else (a format's own layout, e.g. an RGL file) a Rusinkiewicz
+    grid with MERL's θh warp and φd over the full turn (no fold: such a file is conditioned on
+    wi, so its interpolant is not exactly reciprocal even when its source was): 90 × 90 × 180
+    for an isotropic source, 48 × 32 × 96 with 96 φh nodes for an anisotropic one."""
+    from .grids.rusinkiewicz import RusinkiewiczGrid
+
+    g = getattr(source, "grid", None)
+    if isinstance(g, Grid):
+        return g
+    if source.isotropic:
+        return RusinkiewiczGrid(90, 90, 180, theta_h_spacing="merl", phi_d_fold="none")
+    return RusinkiewiczGrid(48, 32, 96, 96, theta_h_spacing="merl", phi_d_fold="none")
 
 
 @dataclass
@@ -71,9 +95,12 @@ class Difference:
     rms_rel: float
     points: int
     requested: int
+    #: median |Δf| / f over check points with θi, θo ≤ 80° (where f > 0)
+    median_rel: float = float("nan")
 
     def to_json(self) -> dict:
         return {"max_relative_difference": self.max_rel, "rms_relative_difference": self.rms_rel,
+                "median_relative_difference_80deg": self.median_rel,
                 "check_points": self.points, "check_points_requested": self.requested}
 
 
@@ -92,12 +119,14 @@ class Conversion:
     note: str = ""
     report: object = None
     written: object = None
+    input_report: object = None
 
     def to_json(self) -> dict:
         return {"source": str(self.source), "target": str(self.target), "format": self.format,
                 "source_grid": self.source_grid, "target_grid": self.target_grid, "resampled": self.resampled,
                 "folded": list(self.folded), "difference": self.difference.to_json() if self.difference else None,
-                "note": self.note, "checks": _checks_json(self.report)}
+                "note": self.note, "checks": _checks_json(self.report),
+                "input_checks": _checks_json(self.input_report)}
 
 
 def _checks_json(report):
@@ -261,31 +290,39 @@ def difference(source, written, n: int = CHECK_POINTS, seed: int = 0):
     from .checks.tabulation import compare
 
     rms, top, _, count = compare(f_w[ok], f_s[ok], wi[ok, 2] * wo[ok, 2])
-    return Difference(top, rms, count, int(n)), ""
+    inner = ok & (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = np.abs(f_w[inner] - f_s[inner]) / np.abs(f_s[inner])
+    rel = rel[np.isfinite(rel)]
+    median = float(np.median(rel)) if rel.size else float("nan")
+    return Difference(top, rms, count, int(n), median), ""
 
 
 # --------------------------------------------------------------------------------------------
 
-def _refusal(report, what) -> str:
+def _refusal(report, source, target) -> str:
     parts = []
     for o in report.failures:
         fig = "" if o.figure is None else f" (figure {o.figure:.4g}" + (
             "" if o.threshold is None else f", threshold {o.threshold:.4g}") + ")"
         parts.append(f"{o.name}: {o.detail}{fig}")
-    return f"refusing to convert {what}: {'; '.join(parts)} (pass --allow-invalid to write anyway)"
+    return (f"refusing to write {target}: the conversion of {source} fails {'; '.join(parts)} (nothing written; "
+            "pass --allow-invalid to write it with validation_passed = 0)")
 
 
 def convert(source, target, *, grid=None, wavelengths=None, format: str | None = None, options: dict | None = None,
             overwrite: bool = False, fold: bool = False, allow_invalid: bool = False, checks=None,
-            progress: bool | None = None, inputs=(), n_check: int = CHECK_POINTS) -> Conversion:
+            progress: bool | None = None, inputs=(), n_check: int = CHECK_POINTS, origin: str | None = None) -> Conversion:
     """Convert the table file ``source`` into ``target`` (see the module docstring).
 
-    ``grid``: a :class:`~brdftab.grids.Grid` to write on (None: the source's own);
+    ``grid``: a :class:`~brdftab.grids.Grid` to write on (None: :func:`default_grid`);
     ``wavelengths`` [nm] to resample a spectral source at; ``format``: an output format name
     (None: from ``target``'s extension); ``options``: format options; ``fold``: average the
     source into the target grid's symmetries when it has fewer; ``checks``: a configuration
-    layer for the validation checks; ``inputs``: further files the conversion reads (never
-    overwritten).
+    layer for the validation checks; ``allow_invalid``: write an output that fails a check
+    (stamped ``validation_passed = 0``); ``origin``: the user's word on where the source's
+    values come from ("analytic", "measured", "unknown"; default: what the file records);
+    ``inputs``: further files the conversion reads (never overwritten).
     """
     started = time.monotonic()
     source, target = Path(source), Path(target)
@@ -300,13 +337,15 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
     check_target(target, overwrite, inputs)
     with terminate_as_interrupt(), claim([target], overwrite, inputs):
         table = formats.read(source)
-        report = _run_checks(table, checks)
-        if not report.passed and not allow_invalid:
-            raise InvalidSource(_refusal(report, source))
+        if origin is not None:
+            table.origin = origin
+        report_in = _run_checks(table, checks, origin)
         src_grid = getattr(table, "grid", None)
         if not isinstance(src_grid, Grid):  # samples in a format's own layout (not a brdftab grid)
             src_grid = None
         requested = grid if grid is not None else src_grid
+        if requested is None and fmt.prepare is None:
+            requested = default_grid(table)
         try:
             out_grid = formats.target_grid(fmt, requested, options)
         except ParameterError as exc:
@@ -315,10 +354,6 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
         if out_grid is None and grid is not None:
             raise BrdftabError(f"{target}: format {fmt.name} samples the source on its own parameterization; --grid "
                                f"is not used (set its sampling with -o format options)")
-        if out_grid is None and fmt.prepare is None:
-            layout = getattr(getattr(table, "grid", None), "describe", lambda: "its own layout")()
-            raise BrdftabError(f"{source} holds samples in {layout}, not on a grid {fmt.name} can store; choose "
-                               "one with --grid (e.g. --grid merl)")
         same_grid = out_grid is not None and src_grid is not None and out_grid.equals(src_grid)
         same_lam = wavelengths is None or (table.spectral and np.array_equal(np.asarray(wavelengths, float),
                                                                               np.asarray(table.wavelengths, float)))
@@ -339,30 +374,43 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
             if reasons or ("reciprocity" in src_fold and not table.reciprocal):
                 brdf = Average(term=table, rotations=_rotations(src_grid) if "azimuth" in reasons else 0,
                                swap="reciprocity" in reasons)
+                brdf.origin = table.origin
                 if "reciprocity" in src_fold:  # a table folded by reciprocity holds reciprocal data
                     brdf.reciprocal = True
-        payload = brdf
-        if fmt.prepare is None and out_grid is not None and resampled:
+        if out_grid is not None and resampled and fmt.prepare is None:
             payload = _tabulate(brdf, out_grid, wavelengths, table, source, progress)
             bad = int(np.isnan(payload.values).any(axis=-1).sum())
             if bad and not allow_invalid:
                 raise BrdftabError(f"refusing to convert {source}: {bad} of {out_grid.size} nodes of "
                                       f"{out_grid.describe()} lie outside the source's domain or read missing "
                                       "samples (NaN); choose a grid inside it (--grid) or pass --allow-invalid")
-        elif wavelengths is not None and not same_lam:
+        elif wavelengths is not None and not same_lam and out_grid is None:
             raise BrdftabError(f"--grid wavelengths_nm: format {fmt.name} samples the source itself; "
                                "it cannot resample wavelengths")
+        else:
+            with formats.naming(target):
+                payload = formats.prepare(fmt, brdf, out_grid, options)
+        # validate what is written (a copy is the input itself: its report is the output's)
+        checked = payload if isinstance(payload, BRDF) else getattr(payload, "bsdf", None)
+        if checked is table or checked is None:
+            report_out = report_in
+        else:
+            report_out = _run_checks(checked, checks, origin, reference=brdf)
         if hasattr(payload, "ds"):
             from .checks import stamp
 
-            stamp(payload, report)  # the input's report travels with the table (--allow-invalid included)
+            stamp(payload, report_out)  # validation_passed: the output passed (or 0, written with --allow-invalid)
+            if report_out is not report_in:
+                _stamp_input(payload, report_in, source)
+        if not report_out.passed and not allow_invalid:
+            raise InvalidOutput(_refusal(report_out, source, target))
         with write_progress(target.name, progress, _delay(started)):
-            written = formats.write(payload, target, grid=out_grid, format=fmt.name, overwrite=overwrite,
-                                    **options)
+            formats.write_prepared(fmt, payload, target, overwrite=overwrite, options=options)
+        written = payload
         src_text = getattr(getattr(table, "grid", None), "describe", lambda: "")()
         result = Conversion(source, target, fmt.name, src_text,
                             out_grid.describe() if out_grid is not None else "", resampled, folded,
-                            report=report, written=written)
+                            report=report_out, written=written, input_report=report_in)
         if resampled or folded:
             back = _read_back(fmt, target, written)
             if back is None:
@@ -375,18 +423,30 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
     return result
 
 
+def _stamp_input(table, report, source) -> None:
+    """The input's check results, carried as information in the output's metadata."""
+    import json
+
+    attrs = table.ds.attrs
+    attrs["input_validation_passed"] = int(report.passed)
+    attrs["input_validation_summary"] = f"{source.name}: " + "; ".join(
+        f"{o.status.upper()} {o.name}: {o.detail}" for o in report.outcomes if o.status in ("fail", "warn")) \
+        if (report.failures or report.warnings) else f"{source.name}: {report.summary()}"
+    attrs["input_validation_report"] = json.dumps(report.to_json(), separators=(",", ":"))
+
+
 def _delay(started: float) -> float:
     from . import table
 
     return max(0.0, table.PROGRESS_DELAY - (time.monotonic() - started))
 
 
-def _run_checks(table, checks):
+def _run_checks(brdf, checks, origin=None, reference=None):
     from .checks import run_checks
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        return run_checks(table, checks)
+        return run_checks(brdf, checks, origin=origin, reference=reference)
 
 
 def _tabulate(brdf, grid, wavelengths, table, source: Path, progress):

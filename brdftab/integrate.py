@@ -24,7 +24,8 @@ Against converged references for GGX and Beckmann lobes of α = 0.002 … 0.5 th
 incidence direction (6 nodes per panel).
 
 An anisotropic lobe (a BRDF declaring ``lobe_axes = (a_x, a_y)``, e.g. a microfacet with α_x ≠
-α_y) is long and thin in half-vector azimuth: the azimuth panels are then graded geometrically
+α_y, or a table or file that is not isotropic, whose axes are measured by :func:`probe_axes`)
+is long and thin in half-vector azimuth: the azimuth panels are then graded geometrically
 towards the lobe's long axis, from (a_min/a_max)/8 by a factor of 2, the same hp-refinement
 as in θh (GGX α = 0.716 × 3e-5 and 0.05 × 0.5 agree with Monte Carlo references to their
 error bars; a Lambertian declaring such axes still integrates to 1e-9).
@@ -193,12 +194,14 @@ def _phi_edges(panels):
     return np.linspace(-np.pi, np.pi, panels + 1)
 
 
-def _aniso_phi_edges(phi_i, ax, ay):
+def _aniso_phi_edges(phi_i, ax, ay, long_axis=None):
     """Panel edges of ψ = φh − φi for an elliptical lobe with widths ``ax``, ``ay`` along the
-    surface's x and y axes: equal panels, the horizon turns ψ = ±π/2, and edges graded
-    geometrically towards the lobe's long axis (both directions), from (a_min/a_max)/8 by a
-    factor of 2 — at radius r the lobe's azimuthal width is ~ a_min / r."""
-    long_axis = 0.0 if ax >= ay else HALF_PI          # azimuth of the long axis (absolute)
+    surface's x and y axes (or along its own axes, the long one at azimuth ``long_axis``):
+    equal panels, the horizon turns ψ = ±π/2, and edges graded geometrically towards the lobe's
+    long axis (both directions), from (a_min/a_max)/8 by a factor of 2 — at radius r the lobe's
+    azimuthal width is ~ a_min / r."""
+    if long_axis is None:
+        long_axis = 0.0 if ax >= ay else HALF_PI      # azimuth of the long axis (absolute)
     ladder = (min(ax, ay) / max(ax, ay)) / 8.0 * 2.0 ** np.arange(40)
     ladder = ladder[ladder < HALF_PI]
     edges = [_phi_edges(PHI_PANELS * 4), [-HALF_PI, HALF_PI]]
@@ -221,15 +224,16 @@ def outgoing_rule(theta_i: float, phi_i: float = 0.0, width: float = MAX_WIDTH, 
     dωo = 4 (wo·h) dωh.
 
     ``axes = (a_x, a_y)``, the widths of an anisotropic lobe along the surface's x and y axes
-    (e.g. a microfacet's α_x, α_y): the half-vector azimuth panels are then graded
-    geometrically towards the lobe's long axis (see :func:`_aniso_phi_edges`), where the
-    elliptical lobe is long and thin (at radius r its azimuthal width is ~ a_min / r).
+    (e.g. a microfacet's α_x, α_y), or ``(a_long, a_short, azimuth of the long axis)``: the
+    half-vector azimuth panels are then graded geometrically towards the lobe's long axis (see
+    :func:`_aniso_phi_edges`), where the elliptical lobe is long and thin (at radius r its
+    azimuthal width is ~ a_min / r).
     """
     theta_i = float(theta_i)
     w0 = float(np.clip(width, MIN_WIDTH, MAX_WIDTH)) / 8.0
     ladder = w0 * ratio ** np.arange(int(np.ceil(np.log(HALF_PI / w0) / np.log(ratio))) + 1)
     ladder = ladder[ladder < HALF_PI]
-    if axes is not None and max(axes) > ANISOTROPY * min(axes):
+    if axes is not None and max(axes[:2]) > ANISOTROPY * min(axes[:2]):
         psi, wpsi = _gl_panels(_aniso_phi_edges(float(phi_i), *(float(a) for a in axes)), nodes)
     else:
         psi, wpsi = _gl_panels(_phi_edges(PHI_PANELS), nodes)            # [Np]
@@ -378,6 +382,42 @@ def _integrate_framed(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
     return a, c, widths
 
 
+#: Azimuths at which the lobe of an anisotropic BRDF without declared axes is probed.
+AXIS_PROBES = 32
+
+
+def probe_axes(brdf, wavelengths=None):
+    """``(a_long, a_short, azimuth of the long axis)`` of an anisotropic BRDF's lobe about the
+    normal, measured at normal incidence (half vector tilted from the normal towards
+    :data:`AXIS_PROBES` azimuths at the probe offsets of :func:`lobe_width`; the width along
+    an azimuth is the offset where the integrand falls below a tenth of its peak), or None when
+    the widths differ by less than :data:`ANISOTROPY` (or nothing was measured). Used for tables
+    and files, which declare no ``lobe_axes``."""
+    n = PROBE_OFFSETS.size
+    psi = np.arange(AXIS_PROBES) * (np.pi / AXIS_PROBES)       # an axis and its opposite are one
+    th = np.concatenate([[0.0], np.tile(PROBE_OFFSETS, AXIS_PROBES)])
+    ps = np.concatenate([[0.0], np.repeat(psi, n)])
+    h = sph_to_vec(th, ps)
+    wi = np.array([0.0, 0.0, 1.0])
+    wo = 2.0 * h[:, 2:3] * h - wi
+    with np.errstate(all="ignore"):
+        f = np.asarray(brdf.eval(np.broadcast_to(wi, wo.shape), wo, wavelengths), float)
+    g = np.nansum(np.where(np.isfinite(f), f, 0.0), axis=-1) * wo[:, 2] * h[:, 2]
+    g0 = g[0]
+    if not (np.isfinite(g0) and g0 > 0):
+        return None
+    widths = np.full(AXIS_PROBES, MAX_WIDTH)
+    for k in range(AXIS_PROBES):
+        gk = g[1 + k * n: 1 + (k + 1) * n]
+        low = np.flatnonzero(gk < 0.1 * g0)
+        if low.size:
+            widths[k] = PROBE_OFFSETS[low[0]]
+    wmax, wmin = float(widths.max()), float(widths.min())
+    if wmax <= ANISOTROPY * wmin:
+        return None
+    return wmax, wmin, float(psi[int(np.argmax(widths))])
+
+
 def _integrate_plain(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
     """(a[M, C], coverage[M, C], widths[M]) for incidence angles ``theta_i[M]``, ``phi_i[M]``."""
     m = theta_i.size
@@ -385,6 +425,8 @@ def _integrate_plain(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
               else np.broadcast_to(np.asarray(width, float), (m,)).copy())
     wi = sph_to_vec(theta_i, phi_i)
     axes = getattr(brdf, "lobe_axes", None)
+    if axes is None and not getattr(brdf, "isotropic", True):
+        axes = probe_axes(brdf, wavelengths)      # a table or file: measure its lobe's axes
     a = c = None
     start = 0
     while start < m:

@@ -6,10 +6,18 @@ Layout of the dataset (also the netCDF layout, see ``formats/netcdf.md``):
   ``grid.dims + ("wavelength",)``;
 * one coordinate per grid axis, in radians (``units = "rad"``); ``channel`` (names) or
   ``wavelength`` (``units = "nm"``);
+* optionally variable ``specular_reflectance`` (units ``1``) with dims
+  ``("specular_theta_i", "channel" | "wavelength")``: the ideal specular (delta) reflectance
+  of the source per incidence angle — the fraction of the incident flux sent into the mirror
+  direction, which no BRDF sample can hold (a delta). :meth:`Table.specular_delta` interpolates
+  it linearly in θi and the albedo integrals add it; formats that cannot store it say so on
+  export (:func:`warn_specular_dropped`);
 * attributes: ``parameterization``, ``grid``, ``sample_position``, ``phi_d_fold``
   (+ ``theta_h_spacing`` / ``relative_to``), ``model``, ``parameters`` (JSON, angles in
   radians), ``spec_sha256``, ``brdftab_version``, ``created``, ``isotropic``,
-  ``reciprocal`` and the direction/φ conventions in words.
+  ``reciprocal``, ``origin`` (``analytic`` | ``measured`` | ``unknown``; a file without it is
+  ``unknown``, and one without ``reciprocal`` does not declare reciprocity) and the
+  direction/φ conventions in words.
 
 A :class:`Table` is a :class:`~brdftab.brdf.BRDF`: it evaluates at any (wi, wo) by
 multilinear interpolation in its grid's index space — linear in the warped coordinate of
@@ -42,13 +50,14 @@ import numpy as np
 import xarray as xr
 
 from ._version import __version__
-from .brdf import BRDF
+from .brdf import BRDF, ORIGINS
 from .channels import Layout
 from .errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
 from .grids import Grid, check_grid, grid_from_dataset
 
 __all__ = ["Table", "tabulate", "make_table", "check_memory", "OUTSIDE_MODES", "DEFAULT_CHUNK", "DIRECTION_CONVENTION",
-           "PHI_CONVENTION"]
+           "PHI_CONVENTION", "SPECULAR_VAR", "SPECULAR_DIM", "SPECULAR_THETA_I", "carries_specular_delta",
+           "warn_specular_dropped"]
 
 OUTSIDE_MODES = ("nan", "raise", "clamp")
 
@@ -56,6 +65,12 @@ OUTSIDE_MODES = ("nan", "raise", "clamp")
 DEFAULT_CHUNK = 1 << 16
 #: Seconds a tabulation runs before its progress bar appears.
 PROGRESS_DELAY = 2.0
+
+#: The variable and coordinate holding an ideal specular (delta) reflectance per incidence angle.
+SPECULAR_VAR = "specular_reflectance"
+SPECULAR_DIM = "specular_theta_i"
+#: Incidence angles [rad] at which a delta reflectance is stored: every 0.025° from 0 to 90°.
+SPECULAR_THETA_I = np.radians(np.linspace(0.0, 90.0, 3601))
 
 DIRECTION_CONVENTION = ("wi and wo are unit vectors pointing away from the surface in a local frame with the "
                         "normal along +z; theta is the polar angle from +z, phi the azimuth from +x towards +y")
@@ -107,8 +122,78 @@ class Table(BRDF):
         # Without the attribute only an isotropic parameterization implies isotropy.
         self.isotropic = _flag(ds.attrs.get("isotropic", int(ds.attrs["parameterization"] == "rusinkiewicz")))
         self.reciprocal = _flag(ds.attrs.get("reciprocal", 0))
+        #: False when the file does not say whether its data is reciprocal ("unknown")
+        self.reciprocity_declared = "reciprocal" in ds.attrs
+        origin = ds.attrs.get("origin", "unknown")
+        if origin not in ORIGINS:
+            raise FormatError(f"attribute 'origin' = {origin!r}: expected one of {', '.join(map(repr, ORIGINS))}")
+        self.origin = str(origin)
         self.outside = outside
         self._warned = False
+        self._specular = None
+        if SPECULAR_VAR in ds.data_vars:
+            self._check_specular(ds, chan_dim)
+
+    def _check_specular(self, ds, chan_dim):
+        var = ds[SPECULAR_VAR]
+        if var.dims != (SPECULAR_DIM, chan_dim):
+            raise FormatError(f"table variable '{SPECULAR_VAR}' has dims {var.dims}, expected "
+                              f"{(SPECULAR_DIM, chan_dim)}")
+        if SPECULAR_DIM not in ds.variables:
+            raise FormatError(f"table has no '{SPECULAR_DIM}' coordinate for '{SPECULAR_VAR}'")
+        coord = ds[SPECULAR_DIM]
+        theta = np.asarray(coord.values, float)
+        units = str(coord.attrs.get("units", "rad")).strip().lower()
+        if units in ("degree", "degrees", "deg"):
+            theta = np.radians(theta)
+        elif units not in ("rad", "radian", "radians"):
+            raise FormatError(f"coordinate '{SPECULAR_DIM}' has units {coord.attrs.get('units')!r}; expected 'rad' "
+                              "or 'degree'")
+        if (theta.ndim != 1 or theta.size == 0 or not np.all(np.isfinite(theta)) or np.any(np.diff(theta) <= 0)
+                or theta[0] < -1e-12 or theta[-1] > np.pi / 2 + 1e-9):
+            raise FormatError(f"coordinate '{SPECULAR_DIM}' must hold strictly increasing angles in [0, 90] degrees")
+        self._specular_theta = theta
+
+    @property
+    def specular_reflectance(self):
+        """``(θi [rad], ρ_s[θi, C])`` of the stored ideal specular reflectance, or None."""
+        if SPECULAR_VAR not in self.ds.data_vars:
+            return None
+        if self._specular is None:
+            vals = self._read(self.ds[SPECULAR_VAR]).astype(float)
+            if not np.all(np.isfinite(vals)) or np.any(vals < 0):
+                src = self.ds.encoding.get("source", "the table file")
+                raise FormatError(f"{src}: '{SPECULAR_VAR}' must hold finite reflectances >= 0")
+            self._specular = vals
+        return self._specular_theta, self._specular
+
+    @property
+    def specular_delta(self):
+        """ρ_s(wi, wavelengths) → [..., C] when the table carries an ideal specular reflectance
+        (:data:`SPECULAR_VAR`), else None: linear in θi between the stored angles, 0 at and
+        below the horizon."""
+        return self._specular_delta if SPECULAR_VAR in self.ds.data_vars else None
+
+    def _specular_delta(self, wi, wavelengths=None):
+        lam = self.layout.resolve(wavelengths)
+        n = self.layout.n_out(lam)
+        theta, vals = self.specular_reflectance
+        wi = np.asarray(wi, float)
+        lead = wi.shape[:-1]
+        w = wi.reshape(-1, 3)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cz = w[:, 2] / np.linalg.norm(w, axis=-1)
+        ti = np.arccos(np.clip(cz, -1.0, 1.0))
+        out = np.stack([np.interp(ti, theta, vals[:, c]) for c in range(vals.shape[1])], axis=-1)
+        out[~(cz > 1e-12)] = 0.0
+        out[~np.isfinite(cz)] = np.nan
+        if lam is not None and self.spectral:
+            stored = self.layout.wavelengths
+            if not (stored.shape == lam.shape and np.array_equal(stored, lam)):
+                out = _interp_last(out, stored, lam)
+        elif out.shape[1] != n:
+            out = np.repeat(out, n, axis=1)
+        return out.reshape(lead + (n,))
 
     @property
     def outside(self) -> str:
@@ -483,11 +568,49 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
         if bar is not None:
             bar.close()
     return make_table(values, grid, brdf.layout if lam is None else Layout(None, lam), brdf=brdf,
-                      provenance=provenance)
+                      provenance=provenance, specular=_specular_samples(brdf, lam))
 
 
-def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, provenance: dict | None = None) -> Table:
-    """Wrap sampled ``values[grid..., C]`` into a :class:`Table` with full metadata."""
+def carries_specular_delta(brdf) -> bool:
+    """True when ``brdf`` has an ideal specular (delta) part: a callable ``specular_delta``."""
+    return callable(getattr(brdf, "specular_delta", None))
+
+
+def _specular_samples(brdf, lam):
+    """``(θi, ρ_s[θi, C])`` of an isotropic BRDF's delta at :data:`SPECULAR_THETA_I`, or None.
+    An anisotropic BRDF's delta depends on φi too: it is not stored (and said so)."""
+    if not carries_specular_delta(brdf):
+        return None
+    if not brdf.isotropic:
+        warn_specular_dropped(brdf, "a table (anisotropic deltas are not stored)")
+        return None
+    wi = np.stack([np.sin(SPECULAR_THETA_I), np.zeros_like(SPECULAR_THETA_I), np.cos(SPECULAR_THETA_I)], axis=-1)
+    vals = np.asarray(brdf.specular_delta(wi, lam), float).reshape(SPECULAR_THETA_I.size, -1)
+    return SPECULAR_THETA_I, vals
+
+
+def warn_specular_dropped(brdf, where: str) -> None:
+    """Say (one line, a :class:`BrdftabWarning`) that ``where`` (a format) cannot hold the ideal
+    specular (delta) reflectance of ``brdf``, so only its finite part is written."""
+    if not carries_specular_delta(brdf):
+        return
+    try:
+        theta = SPECULAR_THETA_I[::40]
+        wi = np.stack([np.sin(theta), np.zeros_like(theta), np.cos(theta)], axis=-1)
+        lam = brdf.layout.resolve(None) if not brdf.spectral or brdf.wavelengths is not None else None
+        top = float(np.nanmax(brdf.specular_delta(wi, lam))) if lam is not None or not brdf.spectral else None
+    except BrdftabError:
+        top = None
+    size = f" (a reflectance of up to {top:.3g})" if top is not None else ""
+    warnings.warn(f"{where} cannot hold the ideal specular (delta) part of '{brdf.name}'{size}: it is not stored, "
+                  "only the finite BRDF f_r is written", BrdftabWarning, stacklevel=3)
+
+
+def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, provenance: dict | None = None,
+               specular=None) -> Table:
+    """Wrap sampled ``values[grid..., C]`` into a :class:`Table` with full metadata.
+
+    ``specular = (theta_i [rad], rho[θi, C])`` adds the ideal specular reflectance variable."""
     coords = {}
     for ax in grid.axes:
         coords[ax.name] = xr.Variable((ax.name,), ax.values, attrs=grid.coord_attrs(ax.name))
@@ -518,12 +641,23 @@ def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, pro
         "created": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
         "isotropic": int(brdf.isotropic if brdf is not None else 0),
         "reciprocal": int(brdf.reciprocal if brdf is not None else 0),
+        "origin": str(getattr(brdf, "origin", "analytic")) if brdf is not None else "unknown",
         "direction_convention": DIRECTION_CONVENTION,
         "phi_convention": PHI_CONVENTION,
     })
     if provenance:
         attrs.update(provenance)
-    ds = xr.Dataset({"brdf": var}, coords=coords, attrs=attrs)
+    data = {"brdf": var}
+    if specular is not None:
+        theta, rho = specular
+        coords[SPECULAR_DIM] = xr.Variable((SPECULAR_DIM,), np.asarray(theta, float), attrs={
+            "units": "rad", "long_name": "incidence angle of the ideal specular reflectance"})
+        data[SPECULAR_VAR] = xr.Variable((SPECULAR_DIM, chan_dim), np.asarray(rho, float), attrs={
+            "units": "1", "long_name": "ideal specular (delta) reflectance",
+            "quantity": "fraction of the incident flux reflected into the mirror direction by the source's "
+                        "delta component; not contained in brdf, add it to directional albedos",
+            "interpolation": "linear in the incidence angle"})
+    ds = xr.Dataset(data, coords=coords, attrs=attrs)
     return Table(ds)
 
 

@@ -410,3 +410,108 @@ def test_guard_refuses_with_exit_code_1_and_stamps_metadata():
     assert json.loads(attrs["validation_report"]) == json.loads(json.dumps(report.to_json()))
     assert len(json.loads(attrs["albedo_theta_i_deg"])) == 90
     assert np.allclose(json.loads(attrs["albedo_values"]), 1.2, atol=1e-4)
+
+
+# -- measured data: origin, reciprocity as data, negatives, coverage ---------------------------
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory):
+    from _measured import measured_bsdf
+
+    path = tmp_path_factory.mktemp("measured") / "paper.bsdf"
+    model = measured_bsdf(path)
+    return path, model
+
+
+def test_measured_file_reciprocity_is_reported_as_data(measured):
+    from _measured import THETA_I_MAX_DEG
+
+    path, model = measured
+    t = brdftab.open(path)
+    r = run_checks(t, only=("reciprocity", "non-negative"))
+    o = r.get("reciprocity")
+    # no reciprocity assumed: a luminance-weighted figure within the measured range, WARN not FAIL
+    assert o.status == "warn" and r.passed
+    assert o.data["origin"] == "unknown" and o.data["luminance"] and o.data["theta_max_deg"] == pytest.approx(
+        THETA_I_MAX_DEG, abs=1e-3)
+    assert "reciprocity not declared" in o.detail
+    # the figure is the data's: the model the file sampled, restricted the same way, agrees
+    lum = np.array([0.2126, 0.7152, 0.0722])
+    wi, wo = _pairs_within(THETA_I_MAX_DEG)
+    f1, f2 = model.eval(wi, wo) @ lum, model.eval(wo, wi) @ lum
+    w = wi[:, 2] * wo[:, 2]
+    expect = float(np.sum(np.abs(f1 - f2) * w) / np.sum(0.5 * (f1 + f2) * w))
+    assert o.figure == pytest.approx(expect, rel=0.2)
+    # negatives: counted, the lowest located, reported not refused
+    n = r.get("non-negative")
+    assert n.status == "warn" and n.data["negative"] > 0 and n.data["worst"] is not None
+    # the user can say the data must be reciprocal: then the asymmetry fails
+    strict = run_checks(t, {"reciprocity": {"assume": "reciprocal"}}, only=("reciprocity",))
+    assert not strict.passed and strict.get("reciprocity").status == "fail"
+    # or that it is analytic: negatives then fail
+    assert run_checks(t, only=("non-negative",), origin="analytic").get("non-negative").status == "fail"
+
+
+def _pairs_within(theta_max_deg, n=40000, seed=5):
+    rng = np.random.default_rng(seed)
+    c = np.cos(np.radians(theta_max_deg))
+    mu_i, mu_o = rng.uniform(c, 1, n), rng.uniform(c, 1, n)
+    from brdftab.geometry import sph_to_vec
+
+    return sph_to_vec(np.arccos(mu_i), rng.uniform(0, 2 * np.pi, n)), sph_to_vec(np.arccos(mu_o),
+                                                                                 rng.uniform(0, 2 * np.pi, n))
+
+
+def test_a_table_that_does_not_declare_reciprocity_is_unknown(tmp_path):
+    import xarray as xr
+
+    t = brdftab.tabulate(models.create("microfacet", **GGX), RusinkiewiczGrid(12, 12, 24, phi_d_fold="none"),
+                         progress=False)
+    assert t.origin == "analytic" and t.reciprocity_declared
+    path = tmp_path / "t.nc"
+    brdftab.save(t, path)
+    with xr.open_dataset(path) as ds:
+        ds = ds.load()
+    for key in ("reciprocal", "origin"):
+        del ds.attrs[key]
+    ds.to_netcdf(tmp_path / "foreign.nc")
+    foreign = brdftab.open(tmp_path / "foreign.nc")
+    assert foreign.origin == "unknown" and not foreign.reciprocity_declared
+    o = run_checks(foreign, only=("reciprocity",)).get("reciprocity")
+    assert o.status == "pass" and "reciprocity not declared" in o.detail and o.data["origin"] == "unknown"
+    # a declared-reciprocal analytic table with a negative sample still fails
+    v = t.values.copy()
+    v[3, 3, 3, 0] = -0.5
+    neg = make_table(v, t.grid, t.layout, brdf=models.create("microfacet", **GGX))
+    assert run_checks(neg, only=("non-negative",)).get("non-negative").status == "fail"
+
+
+def test_coverage_fails_without_data_and_warns_with_little(tmp_path):
+    from brdftab.channels import Layout
+    from brdftab.grids import merl_grid
+
+    # a MERL file whose samples are all missing (-1), and one whose samples are all negative
+    g = merl_grid()
+    for value in (-1.0, -7.5):
+        raw = np.full((3,) + g.shape, value, dtype="<f8")
+        path = tmp_path / f"empty{int(-value)}.binary"
+        path.write_bytes(np.array(g.shape, dtype="<i4").tobytes() + raw.tobytes())
+        r = run_checks(brdftab.open(path), only=("coverage",))
+        o = r.get("coverage")
+        assert o.status == "fail" and o.figure == 0.0 and not r.passed and "no data" in o.detail
+        res = CliRunner_invoke(["validate", str(path)])
+        assert res.exit_code == 1 and "coverage" in res.output
+    # a quarter of the samples present: WARN with the figure
+    grid = RusinkiewiczGrid(8, 8, 8)
+    v = np.full(grid.shape + (1,), 0.2)
+    v.reshape(-1)[: v.size * 3 // 4] = np.nan
+    o = run_checks(make_table(v, grid, Layout()), only=("coverage",)).get("coverage")
+    assert o.status == "warn" and o.figure == pytest.approx(0.25, abs=1e-9)
+
+
+def CliRunner_invoke(args):
+    from click.testing import CliRunner
+
+    from brdftab.cli import main
+
+    return CliRunner().invoke(main, args)

@@ -345,3 +345,93 @@ def test_allow_invalid_conversion_keeps_the_report(tmp_path):
         rep = json.loads(ds.attrs["validation_report"])
         assert ds.attrs["validation_passed"] == 0
     assert any(c["name"] == "finite" and c["status"] == "fail" for c in rep["checks"])
+
+
+# -- measured data and what a conversion writes -------------------------------------------------
+
+@pytest.fixture(scope="module")
+def measured(tmp_path_factory):
+    from _measured import measured_bsdf
+
+    path = tmp_path_factory.mktemp("measured") / "paint.bsdf"
+    measured_bsdf(path)
+    return path
+
+
+def test_measured_bsdf_converts_with_its_warnings(measured, tmp_path):
+    out = tmp_path / "paint.nc"
+    result = _cli("convert", measured, out)           # no --grid: one rule for every input
+    assert result.exit_code == 0, result.stderr
+    assert "input paint.bsdf: WARN reciprocity" in result.stderr and "WARN non-negative" in result.stderr
+    with xr.open_dataset(out) as ds:
+        attrs = dict(ds.attrs)
+    assert attrs["validation_passed"] == 1 and attrs["input_validation_passed"] == 1
+    assert "reciprocity" in attrs["input_validation_summary"] and attrs["origin"] == "unknown"
+    assert attrs["reciprocal"] == 0 and attrs["phi_d_fold"] == "none"
+    rep = json.loads(attrs["input_validation_report"])
+    assert {c["name"]: c["status"] for c in rep["checks"]}["reciprocity"] == "warn"
+    # the default grid reproduces the file: median relative error of f within 3 % at θ <= 80°
+    m = re.search(r"median relative error of f at θi, θo ≤ 80°: ([0-9.e+-]+)", result.stdout)
+    assert m and float(m.group(1)) < 0.03
+    back, src = brdftab.open(out), brdftab.open(measured)
+    rng = np.random.default_rng(2)
+    mu = rng.uniform(np.cos(np.radians(80)), 1, (2, 4000))
+    wi = brdftab.geometry.sph_to_vec(np.arccos(mu[0]), rng.uniform(0, 6.28, 4000))
+    wo = brdftab.geometry.sph_to_vec(np.arccos(mu[1]), rng.uniform(0, 6.28, 4000))
+    a, b = back.eval(wi, wo), src.eval(wi, wo)
+    ok = b > 1e-3
+    assert np.median(np.abs(a[ok] - b[ok]) / b[ok]) < 0.03
+
+
+def test_measured_bsdf_to_merl_needs_fold_and_to_exr_keeps_the_full_turn(measured, tmp_path):
+    result = _cli("convert", measured, tmp_path / "paint.binary")
+    _one_error(result.stderr.splitlines()[-1], result.exit_code, "not reciprocal", "--fold")
+    assert not (tmp_path / "paint.binary").exists()
+    result = _cli("convert", measured, tmp_path / "paint.binary", "--fold")
+    assert result.exit_code == 0, result.stderr
+    assert "folded" in result.stdout
+    result = _cli("convert", measured, tmp_path / "paint.exr")
+    assert result.exit_code == 0, result.stderr
+    exr = brdftab.open(tmp_path / "paint.exr")
+    assert exr.grid.phi_d_fold == "none" and exr.origin == "unknown"
+
+
+def test_output_that_fails_a_check_is_refused_unless_allowed(rusi_nc, tmp_path):
+    out = tmp_path / "strict.nc"
+    strict = ["--grid", "{type = 'rusinkiewicz', n_theta_h = 8, n_theta_d = 8, n_phi_d = 16}",
+              "--level", "tabulation=error", "--set", "tabulation.rms=1e-9"]
+    proc = _run("convert", rusi_nc, out, *strict)
+    _one_error(proc.stderr, proc.returncode, "refusing to write", "tabulation", "--allow-invalid", exit_code=1)
+    assert not out.exists() and _partials(tmp_path) == []
+    proc = _run("convert", rusi_nc, out, *strict, "--allow-invalid")
+    assert proc.returncode == 0, proc.stderr
+    with xr.open_dataset(out) as ds:
+        assert ds.attrs["validation_passed"] == 0
+        rep = json.loads(ds.attrs["validation_report"])
+    assert {c["name"]: c["status"] for c in rep["checks"]}["tabulation"] == "fail"
+
+
+def test_lambert_round_trip_through_bsdf_writes_what_it_checks(tmp_path):
+    src = tmp_path / "white.nc"
+    brdftab.save(brdftab.models.create("lambert", albedo=0.99), src, grid="merl")
+    assert _cli("convert", src, tmp_path / "white.bsdf").exit_code == 0
+    result = _cli("convert", tmp_path / "white.bsdf", tmp_path / "back.nc")
+    assert result.exit_code == 0, result.stderr
+    back = brdftab.open(tmp_path / "back.nc")
+    assert back.ds.attrs["validation_passed"] == 1
+    rep = json.loads(back.ds.attrs["validation_report"])
+    energy = next(c for c in rep["checks"] if c["name"] == "energy")
+    assert energy["figure"] <= 1.0            # it was 3.92 at 89°, stamped passed
+    # f at grazing stays near the Lambertian's (it was +48 %)
+    wi = brdftab.geometry.sph_to_vec(np.radians(30.0), 0.0)
+    wo = brdftab.geometry.sph_to_vec(np.radians([80.0, 85.0, 88.0, 89.5]), np.pi)
+    assert np.all(np.abs(back.eval(wi, wo)[:, 1] / (0.99 / np.pi) - 1) < 0.1)
+
+
+def test_all_missing_merl_is_refused(tmp_path):
+    g = merl_grid()
+    path = tmp_path / "empty.binary"
+    path.write_bytes(np.array(g.shape, dtype="<i4").tobytes() + np.full((3,) + g.shape, -1.0).tobytes())
+    proc = _run("convert", path, tmp_path / "empty.nc")
+    _one_error(proc.stderr, proc.returncode, "coverage", exit_code=1)
+    assert not (tmp_path / "empty.nc").exists()

@@ -228,3 +228,43 @@ def test_anisotropic_rule_integrates_a_lambertian_exactly(axes):
 
     a = directional_albedo(Declares(), R([0.0, 60.0, 89.0])[:, None], (np.arange(8) * np.pi / 4)[None, :])
     np.testing.assert_allclose(a, 0.5, rtol=1e-8)
+
+
+# -- anisotropic tables: axes measured, not declared --------------------------------------------
+
+def test_anisotropic_table_albedo_is_invariant_as_phi_i_turns_at_normal_incidence():
+    """A table declares no lobe axes: they are probed. At θi = 0 every φi is the same incidence,
+    so a(0, φi) must not depend on φi; each value and the white-sky albedo are compared with an
+    independent fine product quadrature of the same table."""
+    import brdftab
+    from brdftab.geometry import sph_to_vec
+    from brdftab.grids import RusinkiewiczGrid
+    from brdftab.integrate import probe_axes
+    from brdftab.quadrature import gauss_legendre
+
+    m = models.create("microfacet", alpha_x=0.05, alpha_y=0.3)
+    t = brdftab.tabulate(m, RusinkiewiczGrid(32, 32, 64, 64, theta_h_spacing="merl", phi_d_fold="none"),
+                         progress=False)
+    assert t.lobe_axes is None and not t.isotropic
+    axes = probe_axes(t)
+    assert axes is not None and axes[0] > 3 * axes[1] and abs(np.sin(axes[2])) > 0.99   # long along y
+    mu, wmu = gauss_legendre(200, 0.0, 1.0)
+    ph = (np.arange(900) + 0.5) * 2 * np.pi / 900
+    wo = sph_to_vec(np.arccos(mu)[:, None], ph[None, :]).reshape(-1, 3)
+    w = (wmu[:, None] * np.full(900, 2 * np.pi / 900)).ravel() * wo[:, 2]
+
+    def fine(theta, phi):
+        f = t.eval(sph_to_vec(theta, phi), wo)[:, 0]
+        return float(np.nansum(f * w))
+
+    ref0 = fine(0.0, 0.0)
+    phis = R(np.arange(0, 360, 22.5))
+    a0 = directional_albedo(t, 0.0, phis)[:, 0]
+    assert np.all(np.abs(a0 / ref0 - 1) < 0.005), (a0, ref0)
+    # white-sky: (1/π) ∫ a(θi, φi) cosθi dωi, a from the fine rule on a Gauss–Legendre μi × φi product
+    mi_, wmi = gauss_legendre(6, 0.0, 1.0)
+    phi_i = (np.arange(6) + 0.5) * 2 * np.pi / 6
+    ref_ws = sum(wa * wb * fine(np.arccos(x), p) * x * 2 for x, wa in zip(mi_, wmi) for p, wb in
+                 zip(phi_i, np.full(6, 1 / 6)))
+    curve = albedo_curve(t, R(np.linspace(0, 89, 46)), phi_i)
+    assert curve.white_sky[0] == pytest.approx(ref_ws, rel=0.005)

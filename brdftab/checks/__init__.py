@@ -204,11 +204,23 @@ class Context:
     """What a check is given: the BRDF, the wavelengths to evaluate it at, the model a table
     was made from (when known) and a cache shared by all checks of one run."""
 
-    def __init__(self, brdf, wavelengths=None, reference=None):
+    def __init__(self, brdf, wavelengths=None, reference=None, origin=None):
         self.brdf = brdf
         self.wavelengths = None if wavelengths is None else np.asarray(wavelengths, float)
         self.reference = reference
+        self._origin = origin
         self.cache: dict = {}
+
+    @property
+    def origin(self) -> str:
+        """Where the values come from: the user's word (``origin=``), else what the BRDF
+        records (:attr:`brdftab.brdf.BRDF.origin`); a BRDF that records nothing is "unknown"."""
+        return self._origin or getattr(self.brdf, "origin", "unknown")
+
+    @property
+    def measured(self) -> bool:
+        """Measured-data defaults apply (origin "measured" or "unknown")."""
+        return self.origin != "analytic"
 
     @property
     def is_table(self) -> bool:
@@ -352,17 +364,25 @@ def configure(*layers) -> dict:
     return out
 
 
-def run_checks(brdf, config=None, *, only=None, wavelengths=None, reference=None, subject: str = "") -> Report:
+def run_checks(brdf, config=None, *, only=None, wavelengths=None, reference=None, subject: str = "",
+               origin: str | None = None) -> Report:
     """Run the configured checks on ``brdf`` (a model or a table).
 
     ``config`` is one layer as :func:`configure` takes it, or a list of layers (later wins);
     ``only`` restricts the run to the named checks; ``wavelengths`` [nm] are those to evaluate
     a spectral BRDF at; ``reference`` is the model a table was tabulated from (else the model
     named in the table's provenance is used where available); ``subject`` names what is
-    checked in the report.
+    checked in the report; ``origin`` ("analytic", "measured", "unknown") overrides what the
+    BRDF records about where its values come from (measured and unknown data get the
+    measured-data defaults of the reciprocity and non-negative checks).
     """
     merged = configure(config)
-    ctx = Context(brdf, wavelengths, reference)
+    if origin is not None:
+        from ..brdf import ORIGINS
+
+        if origin not in ORIGINS:
+            raise ParameterError("origin", f"expected one of {', '.join(map(repr, ORIGINS))}, got {origin!r}")
+    ctx = Context(brdf, wavelengths, reference, origin)
     report = Report(subject=subject or brdf.describe())
     for name, check in CHECKS.items():
         if only is not None and name not in only:

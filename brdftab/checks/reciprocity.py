@@ -14,6 +14,15 @@
   zoomed gonio grid around the mirror direction) is judged on the model it was made from, at
   the sampled pairs it covers one way: never skipped while that model is known.
 
+**Data** — a table or file of measured or unknown origin (see
+:attr:`brdftab.brdf.BRDF.origin`) that does not declare reciprocity (a netCDF without the
+``reciprocal`` attribute, an RGL file of the database) — is not assumed reciprocal: its
+asymmetry is measured within the incidence range it was measured over (up to its last θi
+node, e.g. ~80° for RGL files), on the relative luminance of its channels, as the albedo-
+weighted figure, and reported as WARN above ``measured_weighted`` (0.05), never FAIL — unless
+the user says the data must be reciprocal (``assume = "reciprocal"``). Data that declares
+reciprocity (the file says so) is judged like a model.
+
 A BRDF that *declares* itself non-reciprocal (``reciprocal = False``: a model whose formula is
 not reciprocal by construction, or a table made from one) is not refused for it: its measured
 asymmetry is reported as WARN (PASS when it is within the thresholds), never FAIL and never
@@ -27,13 +36,38 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..channels import luminance_weights
 from ..params import Param
 from . import Check, register
 from ._pairs import SCALES, asymmetry, fmt_pair, sample_pairs, where_deg
 from ._reference import reference
 from ._tables import data_values, gonio_node_weights, match_axis, node_where, phi_d_pairs
 
-__all__ = ["Reciprocity", "covered"]
+__all__ = ["Reciprocity", "covered", "as_data", "measured_theta_max"]
+
+
+def as_data(ctx) -> bool:
+    """The BRDF is judged as data: of measured or unknown origin and not declared reciprocal
+    (or a table that does not say whether it is)."""
+    b = ctx.brdf
+    if b.reciprocal and getattr(b, "reciprocity_declared", True):
+        return False
+    return ctx.measured or not getattr(b, "reciprocity_declared", True)
+
+
+def measured_theta_max(brdf):
+    """The last measured incidence angle [rad] of data that has one (an RGL file's θi nodes, a
+    gonio table's θi axis), else None."""
+    theta = getattr(brdf, "theta_i", None)
+    if theta is None:
+        grid = getattr(brdf, "grid", None)
+        for ax in getattr(grid, "axes", ()) or ():
+            if getattr(ax, "name", "") == "theta_i":
+                theta = ax.values
+    if theta is None or np.size(theta) == 0:
+        return None
+    top = float(np.max(theta))
+    return top if 0 < top < np.pi / 2 - 1e-9 else None
 
 
 def covered(table, wi, wo) -> np.ndarray:
@@ -111,12 +145,75 @@ class Reciprocity(Check):
         Param("pairs", "int", "Random direction pairs (models, and tables without node pairs).", default=16384,
               minimum=16, maximum=10_000_000),
         Param("seed", "int", "Seed of the random direction pairs.", default=0, minimum=0),
+        Param("measured_weighted", "float", "Data not declared reciprocal (measured or unknown origin): the "
+              "luminance- and albedo-weighted asymmetry above which it is reported (WARN).", default=0.05,
+              minimum=0.0),
+        Param("assume", "choice", "'declared': judge what the BRDF declares (data not declared reciprocal is "
+              "reported, never refused); 'reciprocal': the BRDF must be reciprocal (asymmetry fails).",
+              default="declared", choices=("declared", "reciprocal")),
     )
 
-    def run(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed):
+    def run(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed, measured_weighted, assume):
+        b = ctx.brdf
+        if assume == "declared" and as_data(ctx):
+            return self._data(ctx, measured_weighted, pairs, seed)
         out = self._run(ctx, max_relative, weighted, weighted_interpolated, pairs, seed)
-        if not ctx.brdf.reciprocal and out.status == "fail":
+        if assume == "declared" and not b.reciprocal and out.status == "fail":
             out.status = "warn"  # declared non-reciprocal: reported, never refused
+        return out
+
+    def _data(self, ctx, threshold, pairs, seed):
+        """Measured or unknown data without a reciprocity declaration: luminance, measured range."""
+        b = ctx.brdf
+        top = measured_theta_max(b)
+        why = "reciprocity not declared" if not getattr(b, "reciprocity_declared", False) else "declared non-reciprocal"
+        lum = luminance_weights(ctx.labels() if ctx.wavelengths is None and not b.spectral else None,
+                                None if ctx.wavelengths is None and not b.spectral else
+                                (ctx.wavelengths if ctx.wavelengths is not None else b.wavelengths))
+        mode = "nodes"
+        nodes = None
+        if ctx.on_grid and "reciprocity" not in getattr(b.grid, "phi_d_fold", "none"):
+            v = data_values(ctx)
+            nodes = (_node_pairs_rusinkiewicz(b, v) if b.grid.parameterization == "rusinkiewicz"
+                     else _node_pairs_spherical(b, v))
+        elif ctx.on_grid:
+            return self.outcome(True, 0.0, threshold, f"reciprocal by construction (phi_d_fold = "
+                                f"'{b.grid.phi_d_fold}'); {why}, origin {ctx.origin}", mode="fold", weighted=0.0,
+                                max_relative=0.0, rms_relative=0.0, origin=ctx.origin)
+        if nodes is not None:
+            f1, f2, w, _ = nodes
+            f1, f2 = f1 @ lum, f2 @ lum
+            n = None
+        else:
+            mode = "interpolated" if ctx.is_table else "pairs"
+            wi, wo, w = sample_pairs(pairs, seed, pair_scales(b))
+            keep = np.ones(wi.shape[0], bool)
+            if top is not None:
+                keep &= (wi[:, 2] >= np.cos(top) - 1e-12) & (wo[:, 2] >= np.cos(top) - 1e-12)
+            if ctx.on_grid:
+                keep &= covered(b, wi, wo) & covered(b, wo, wi)
+            if not keep.any():
+                return self.skip(f"no sampled pair lies inside the measured range together with its reverse ({why})")
+            wi, wo, w = wi[keep], wo[keep], w[keep]
+            f1 = ctx.eval(b, wi, wo) @ lum
+            f2 = ctx.eval(b, wo, wi) @ lum
+            n = (wi, wo)
+        s = asymmetry(f1, f2, w)
+        worst = s.pop("worst")
+        at = ""
+        if worst is not None and n is not None:
+            s["where"] = where_deg(n[0][worst], n[1][worst])
+            at = f" at {fmt_pair(s['where'])}"
+        upto = f"θ ≤ {np.degrees(top):.4g}° (the measured range)" if top is not None else "the whole hemisphere"
+        ok = s["weighted"] <= threshold
+        out = self.outcome(True, s["weighted"], threshold,
+                           f"{why} ({ctx.origin} data): luminance- and albedo-weighted asymmetry {s['weighted']:.3g} "
+                           f"over {upto} (reported above {threshold:g}), max relative {s['max_relative']:.3g}{at}, "
+                           f"rms {s['rms_relative']:.3g}, {s['compared']} {'node ' if mode == 'nodes' else ''}pairs",
+                           mode=mode, origin=ctx.origin, theta_max_deg=None if top is None else float(np.degrees(top)),
+                           luminance=True, **s)
+        if not ok:
+            out.status = "warn"
         return out
 
     def _run(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed):

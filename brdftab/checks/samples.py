@@ -4,8 +4,13 @@ A table may declare samples *missing* (``brdf:valid_min`` — the CF attribute: 
 are not data; MERL's negative "no measurement" markers are read this way). Missing samples are
 counted and reported (WARN by default, with a threshold on their fraction), not treated as
 negative data, and the integrals of the other checks leave them out. Every other sample must be
-finite and non-negative. Each finding says how many samples and where the first few are (axis
-coordinates in degrees and the channel).
+finite and non-negative — except that negative samples of measured data (or data of unknown
+origin) are a WARN with their count and the lowest one's place: measurement noise, reported,
+not refused. Each finding says how many samples and where the first few are (axis coordinates
+in degrees and the channel).
+
+``coverage`` is the fraction of samples that are data (finite and not declared missing): a
+table with none FAILs, one with less than ``warn_below`` WARNs.
 
 A model has no samples: it is audited on the direction pairs the other checks sample
 (:func:`~brdftab.checks._pairs.sample_pairs`).
@@ -20,7 +25,7 @@ from . import Check, register
 from ._pairs import fmt_pair, sample_pairs, where_deg
 from ._tables import fmt_where, missing_mask, node_where
 
-__all__ = ["Finite", "NonNegative", "Missing"]
+__all__ = ["Finite", "NonNegative", "Missing", "Coverage"]
 
 #: Locations listed per finding.
 WHERE = 5
@@ -102,9 +107,19 @@ class NonNegative(Check):
             total = a["values"].size
             lowest = float(a["values"][neg].min()) if count else 0.0
             where = _where(ctx, neg)
-            at = f"; first at {fmt_where(where[0])}" if where else ""
-            return self.outcome(count == 0, count, 0, f"{count} of {total} samples are negative (lowest {lowest:.4g} "
-                                f"sr-1){at}", negative=count, lowest=lowest, samples=total, where=where)
+            worst = None
+            if count:
+                vals = np.where(neg, a["values"], np.inf)
+                worst = node_where(ctx.brdf, int(np.argmin(vals)), ctx.labels())
+            at = f"; lowest at {fmt_where(worst)}" if worst else ""
+            out = self.outcome(count == 0, count, 0, f"{count} of {total} samples are negative (lowest {lowest:.4g} "
+                               f"sr-1){at}", negative=count, lowest=lowest, samples=total, where=where,
+                               worst=worst, origin=ctx.origin)
+            if count and ctx.measured:
+                # measured (or unknown) data: noise can dip below 0; reported, not refused
+                out.status = "warn"
+                out.detail += f" ({ctx.origin} data: reported, not refused)"
+            return out
         a = _model_audit(ctx)
         f = a["f"]
         with np.errstate(invalid="ignore"):
@@ -140,3 +155,30 @@ class Missing(Check):
         return self.outcome(frac <= max_fraction, frac, max_fraction,
                             f"{missing} of {total} samples are missing ({100 * frac:.3g} %, at most "
                             f"{100 * max_fraction:.3g} % accepted){at}", missing=missing, samples=total, where=where)
+
+
+@register
+class Coverage(Check):
+    name = "coverage"
+    family = "samples"
+    summary = "Fraction of samples that are data (finite, not declared missing): none fails, few warn."
+    thresholds = (Param("warn_below", "float", "Coverage below which the table is reported (WARN).", default=0.5,
+                        minimum=0.0, maximum=1.0),)
+
+    def applies(self, ctx):
+        return None if ctx.is_table else "not a table (no samples)"
+
+    def run(self, ctx, warn_below):
+        a = _table_audit(ctx)
+        total = a["values"].size
+        bad = a["missing"] | a["nan"] | a["inf"]
+        valid = total - int(bad.sum())
+        frac = valid / total if total else 0.0
+        text = f"{valid} of {total} samples are data ({100 * frac:.4g} %; missing, NaN and infinite ones are not)"
+        if valid == 0:
+            return self.outcome(False, frac, 0.0, f"{text}: the table holds no data", valid=valid, samples=total)
+        out = self.outcome(True, frac, warn_below, f"{text} (reported below {100 * warn_below:.4g} %)", valid=valid,
+                           samples=total)
+        if frac < warn_below:
+            out.status = "warn"
+        return out

@@ -231,11 +231,14 @@ def _header(table, names) -> dict:
 
 def write_exr(table, path, phi_d_deg=None):
     """Write ``table`` (an isotropic Rusinkiewicz table) as one EXR image per φd node."""
+    from ..table import warn_specular_dropped
+
     check_options(phi_d_deg)
     OpenEXR = _openexr()
     if not _is_isotropic_rusinkiewicz(table.grid):
         raise FormatError(f"EXR slices need a table on an isotropic Rusinkiewicz grid, not on "
                           f"{table.grid.describe()}")
+    warn_specular_dropped(table, "the EXR format")
     names = _exr_channels(table)
     if len(set(names)) != len(names) or not all(names):
         raise FormatError(f"EXR channel names must be distinct and non-empty, got {names}")

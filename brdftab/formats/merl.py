@@ -240,7 +240,10 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
     """
     from ..table import Table, tabulate
 
+    from ..table import warn_specular_dropped
+
     check_options(sample_position, below_horizon, phi_h_average, symmetrize)
+    warn_specular_dropped(brdf, "the MERL .binary format")
     target = grid if _is_merl_grid(grid) else merl_grid(sample_position or "bin-centre")
     n_phi_h = _phi_h_samples(phi_h_average)
     _check_channels(brdf)

@@ -2,7 +2,9 @@
 
 The file is the table's dataset as it is (see :mod:`brdftab.table` and
 ``formats/netcdf.md``): variable ``brdf`` [sr-1], coordinates in radians, CF-style
-attributes and brdftab provenance. Values are zlib-compressed; ``dtype`` chooses float64
+attributes and brdftab provenance, and — for a model with an ideal specular (delta) part — the
+variable ``specular_reflectance`` over ``specular_theta_i`` (written like any auxiliary
+variable, float64). Values are zlib-compressed; ``dtype`` chooses float64
 (default, exact) or float32 storage.
 """
 

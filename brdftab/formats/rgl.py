@@ -42,7 +42,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._version import __version__
-from ..brdf import BRDF
+from ..brdf import BRDF, ORIGINS
+from ..channels import luminance_weights as _luminance_weights
 from ..channels import Layout
 from ..errors import BrdftabError, FormatError, ParameterError
 from ..params import suggest
@@ -59,7 +60,7 @@ TWO_PI = 2.0 * np.pi
 #: Default resolutions (format options).
 DEFAULTS = {
     "n_theta_i": 9,            # incident elevations, evenly spaced in cosθi over [0, theta_i_max_deg]
-    "theta_i_max_deg": 85.0,
+    "theta_i_max_deg": 89.0,
     "n_phi_i": 17,             # anisotropic files: incident azimuths over [-180°, 180°]
     "resolution": 32,          # N × N stored samples per incident direction
     "vndf_resolution": 64,     # VNDF table per incident direction
@@ -69,8 +70,7 @@ DEFAULTS = {
 #: D is floored at this fraction of its maximum: f·cosθo > 0 needs D > 0 (the stored values
 #: are f·cosθo·4σ/D), and Beckmann-type D underflow to 0 far from the normal.
 NDF_FLOOR = 1e-4
-#: Channel weights of the luminance map of RGB files (Rec. 709 / sRGB Y).
-RGB_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
+#: Channels of RGB files (their luminance map uses Rec. 709 Y: channels.luminance_weights).
 RGB = ("R", "G", "B")
 MAX_RESOLUTION = 4096
 
@@ -261,26 +261,6 @@ def _theta_nodes(n=512):
     u, wu = gauss_legendre(n, 0.0, 1.0)
     theta = u2theta(u)
     return theta, np.sin(theta) * np.pi * u * wu
-
-
-def _luminance_weights(channels, lam):
-    """Weights that turn the channel axis into a (relative) luminance: Rec. 709 Y for RGB, CIE ȳ
-    for wavelengths, the mean otherwise."""
-    if lam is None:
-        return RGB_LUMINANCE if tuple(channels) == RGB else np.full(len(channels), 1.0 / len(channels))
-    w = _cie_y(lam)
-    return w / w.sum() if w.sum() > 0 else np.full(lam.size, 1.0 / lam.size)
-
-
-def _cie_y(lam):
-    """CIE 1931 ȳ(λ), multi-lobe Gaussian fit of Wyman, Sloan & Shirley, JCGT 2(2) (2013)."""
-    lam = np.asarray(lam, float)
-
-    def g(mu, s1, s2):
-        t = (lam - mu) / np.where(lam < mu, s1, s2)
-        return np.exp(-0.5 * t * t)
-
-    return 0.821 * g(568.8, 46.9, 40.5) + 0.286 * g(530.9, 16.3, 31.1)
 
 
 def backscatter_ndf(brdf, wavelengths=None, *, n_theta=256, n_phi=8, max_iter=500, tol=1e-10):
@@ -533,6 +513,9 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
         return RGLPayload(dict(brdf.fields))
     if not isinstance(brdf, BRDF):
         raise BrdftabError(f"cannot write {type(brdf).__name__} as an RGL .bsdf file: expected a BRDF")
+    from ..table import warn_specular_dropped
+
+    warn_specular_dropped(brdf, "the RGL .bsdf format")
     anisotropic = opts["anisotropic"]
     if anisotropic is None:
         anisotropic = not brdf.isotropic
@@ -579,6 +562,7 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
         "ndf_source": source,
         "isotropic": bool(brdf.isotropic),
         "reciprocal": bool(brdf.reciprocal),
+        "origin": str(getattr(brdf, "origin", "analytic")),
         "convention": "rgb/spectra = f(wi, wo) cos(theta_o) 4 sigma(wi) / D(m); wi = incident (conditioning) "
                       "direction, m = normalize(wi + wo)",
     }
@@ -767,7 +751,16 @@ class RGLBSDF(BRDF):
         self.jacobian = bool(f["jacobian"][0])
         self.description = bytes(f["description"]).decode("utf-8", errors="replace")
         self.provenance = self._provenance(fields)
-        self.reciprocal = bool(self.provenance.get("reciprocal", True))
+        # brdftab records origin and reciprocity in its files; a file without them (the RGL
+        # database's measurements) is of unknown origin and declares no reciprocity. Even the
+        # file of a reciprocal model is not: it is conditioned on wi (f·cosθo tabulated per
+        # incident direction), so its interpolant is reciprocal only approximately — it declares
+        # itself non-reciprocal and keeps the source's word in `source_reciprocal`.
+        self.source_reciprocal = self.provenance.get("reciprocal")
+        self.reciprocity_declared = "reciprocal" in self.provenance
+        self.reciprocal = False
+        origin = self.provenance.get("origin", "analytic" if "model" in self.provenance else "unknown")
+        self.origin = origin if origin in ORIGINS else "unknown"
         self.resolution = f[key].shape[-1]
         if spectral:
             self._lam = f["wavelengths"].astype(np.float64)
@@ -824,13 +817,53 @@ class RGLBSDF(BRDF):
         t = np.clip((lam - stored[j]) / (stored[j + 1] - stored[j]), 0.0, 1.0)
         return j, j + 1, t
 
+    @property
+    def theta_hold(self) -> float:
+        """Elevation [rad] beyond which f is held (see :meth:`_eval`): 90° − 180°/resolution
+        (84.4° for 32 × 32 samples, 87.2° for 64 × 64)."""
+        return float(np.pi / 2 - np.pi / self.resolution)
+
     def _eval(self, wi, wo, lam, n):
+        """f = (f·cosθo)/cosθo, with f **held** beyond the last well-conditioned elevation.
+
+        The file stores f·cosθo on 32 × 32 (``resolution``) warped samples; in the cells that
+        straddle the horizon the interpolated f·cosθo does not vanish as cosθo does, so the
+        quotient grows without bound at grazing ωo (about 2× a Lambertian's f at 88°, 9× at
+        89.9°). Beyond θ_hold = 90° − 180°/resolution (:attr:`theta_hold`) f is therefore
+        taken at θ_hold with the same azimuth. Renderers use f·cosθo (:meth:`eval_cos`, as
+        Mitsuba evaluates the file); the hold changes the directional albedo by the part of the
+        band θo > θ_hold only (tested against Mitsuba's own albedo of the same file)."""
         lo, hi, t = self._channel_weights(lam, n)
         out = np.empty((wi.shape[0], lo.size))
+        c0 = np.cos(self.theta_hold)
+        s0 = np.sin(self.theta_hold)
         for start in range(0, wi.shape[0], 1 << 14):
             sl = slice(start, start + (1 << 14))
-            out[sl] = self._eval_cos(wi[sl], wo[sl], lo, hi, t) / wo[sl, 2:3]
+            w = wo[sl]
+            low = w[:, 2] < c0
+            if low.any():
+                w = w.copy()
+                r = np.hypot(w[low, 0], w[low, 1])
+                w[low, 0] *= s0 / r
+                w[low, 1] *= s0 / r
+                w[low, 2] = c0
+            out[sl] = self._eval_cos(wi[sl], w, lo, hi, t) / w[:, 2:3]
         return out
+
+    def eval_cos(self, wi, wo, wavelengths=None):
+        """f·cosθo exactly as Mitsuba 3's ``measured`` plugin evaluates the file (no hold)."""
+        from ..geometry import as_directions
+
+        wi, wo = as_directions(wi, wo)
+        lead = wi.shape[:-1]
+        wi, wo = wi.reshape(-1, 3), wo.reshape(-1, 3)
+        lam = self.layout.resolve(wavelengths)
+        lo, hi, t = self._channel_weights(lam, self.layout.n_out(lam))
+        out = np.zeros((wi.shape[0], lo.size))
+        above = (wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12)
+        if above.any():
+            out[above] = self._eval_cos(wi[above], wo[above], lo, hi, t)
+        return out.reshape(lead + (lo.size,))
 
     def _eval_cos(self, wi, wo, lo, hi, t):
         """Mitsuba's ``eval``: f·cosθo at ``(M, 3)`` pairs above the horizon."""
@@ -902,7 +935,8 @@ class RGLBSDF(BRDF):
             out = np.zeros((wi.shape[0], len(self.layout.channels) if self._lam is None else self._lam.size))
             ok = wo[:, 2] > 1e-12
             with np.errstate(all="ignore"):
-                out[ok] = self.eval(wi[ok], wo[ok])
+                # at the stored nodes the quotient is exact (no hold: the node is data)
+                out[ok] = self.eval_cos(wi[ok], wo[ok]) / wo[ok, 2:3]
             self._values = out.reshape(shape + (out.shape[1],))
         return self._values
 
@@ -929,6 +963,7 @@ class RGLBSDF(BRDF):
             attrs = {"format": "rgl", "parameterization": "rgl-adaptive (Dupuy & Jakob 2018)",
                      "description": self.description, "grid": self.grid.describe(),
                      "isotropic": int(self.isotropic), "reciprocal": int(self.reciprocal),
+                     "origin": self.origin,
                      "jacobian": int(self.jacobian)}
             for k in ("model", "brdftab_version", "created", "ndf_source"):
                 if k in self.provenance:

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 from ..errors import BrdftabError
 from ..params import suggest
+from .bitterling import CookTorranceAlphaTheta
 from .combinators import Average, Rotated, Scale, Sum
+from .he_torrance import HeTorrance1991, ModifiedHeTorrance
 from .lambert import Lambert
 from .microfacet import Microfacet
 from .small2021 import Small2021Diffraction, Small2021Peak, SolarCellSmall2021
@@ -31,7 +33,8 @@ def register(cls):
 
 
 for _cls in (Lambert, Microfacet, Sum, Scale, Average, Rotated, TorranceSparrow1967, Small2021Peak,
-             Small2021Diffraction, SolarCellSmall2021, ZernikeExpansion):
+             Small2021Diffraction, SolarCellSmall2021, ZernikeExpansion, CookTorranceAlphaTheta, HeTorrance1991,
+             ModifiedHeTorrance):
     register(_cls)
 
 
