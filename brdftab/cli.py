@@ -210,11 +210,18 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, levels, settings, progress
         click.echo(f"brdftab: warning: written despite failed checks: {result.report.summary()}", err=True)
 
 
+def _format_names_lazy() -> str:
+    from . import formats as fm
+
+    return ", ".join(f"{n} ({'/'.join(f.extensions)})" for n, f in fm.FORMATS.items())
+
+
 # --------------------------------------------------------------------------------------------
 @main.command()
 @click.argument("source", metavar="IN", type=click.Path(dir_okay=False, path_type=Path))
 @click.argument("target", metavar="OUT", type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--to", "fmt", metavar="FORMAT", help="Output format (default: from OUT's extension).")
+@click.option("--to", "fmt", metavar="FORMAT",
+              help="Output format (default: from OUT's extension); one of " + _format_names_lazy() + ".")
 @click.option("--grid", "grid_text", metavar="GRID",
               help="Grid to write on: a grid type ('merl', 'rusinkiewicz', ...) or a TOML inline table of [grid] "
                    "keys, e.g. '{type = \"rusinkiewicz\", n_theta_h = 45}'. Default: IN's grid (or the one the "
@@ -388,18 +395,29 @@ def eval_(source, wi_deg, wo_deg, wavelengths, as_json):
     else:
         names = list(brdf.channels)
         keys = names
+    finite = bool(np.all(np.isfinite(f)))
+
+    def value(v):
+        return float(v) if np.isfinite(v) else None  # JSON has no NaN: null
+
     if as_json:
         out = {"source": str(source), "model": brdf.name, "wi_deg": list(wi_a), "wo_deg": list(wo_a),
-               "units": "sr-1"}
+               "units": "sr-1", "finite": finite}
         if isinstance(keys[0], float):
             out["wavelengths_nm"] = keys
-            out["values"] = [float(v) for v in f]
+            out["values"] = [value(v) for v in f]
         else:
-            out["channels"] = {k: float(v) for k, v in zip(keys, f)}
+            out["channels"] = {k: value(v) for k, v in zip(keys, f)}
         click.echo(json.dumps(out))
     else:
         for name, v in zip(names, f):
             click.echo(f"{name}\t{v:.9g}")
+    if not finite:
+        bad = [n for n, v in zip(names, f) if not np.isfinite(v)]
+        err = BrdftabError(f"{source}: f is not finite at this pair in {', '.join(bad)} (missing samples or no data "
+                           "there)")
+        err.exit_code = 1
+        raise err
 
 
 # --------------------------------------------------------------------------------------------
@@ -453,8 +471,8 @@ def info(file, as_json):
     click.echo(f"  values:      {data['dtype']}, {data['samples']} samples, min {data['min']:.6g}, max {data['max']:.6g}"
                f" sr-1, {data['nonfinite']} non-finite, {data['negative']} negative{missing}"
                if data["min"] is not None else f"  values:      {data['samples']} samples, none finite{missing}")
-    for key in ("parameterization", "sample_position", "phi_d_fold", "theta_h_spacing", "relative_to",
-                "converted_from", "brdftab_version", "created"):
+    for key in ("origin", "reciprocal", "isotropic", "parameterization", "sample_position", "phi_d_fold",
+                "theta_h_spacing", "relative_to", "converted_from", "brdftab_version", "created"):
         if key in attrs:
             click.echo(f"  {key + ':':<18} {attrs[key]}")
 
@@ -596,6 +614,60 @@ def grids(type_name, as_json):
         when = f"; {r['used_when']}" if r["used_when"] else ""
         click.echo(f"  {r['key']}: {r['expected']}; {default}{when}")
         click.echo(f"      {r['doc']}")
+
+
+# --------------------------------------------------------------------------------------------
+def _format_rows():
+    from . import formats as fm
+
+    rows = []
+    for name, f in fm.FORMATS.items():
+        try:
+            g = fm.target_grid(f, None, {})
+            stores = g.describe() if g is not None else ("any brdftab grid (the table's own)" if f.native_grid is None
+                                                         else "its own sample layout")
+        except BrdftabError:
+            stores = "a grid chosen per file"
+        rows.append({"name": name, "extensions": list(f.extensions), "description": f.description,
+                     "read": f.read is not None, "write": f.write is not None, "stores": stores,
+                     "requires": list(f.requires), "available": f.available, "options": dict(f.options)})
+    return rows
+
+
+@main.command("formats")
+@click.argument("name", required=False)
+@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+def formats_(name, as_json):
+    """List the file formats (extensions, the grid each stores, read/write, optional library),
+    or show the options of format NAME (given to tabulate as [[output]] keys and to convert as
+    -o KEY=VALUE)."""
+    from .params import suggest
+
+    rows = _format_rows()
+    if name is None:
+        if as_json:
+            click.echo(json.dumps({r["name"]: {k: v for k, v in r.items() if k != "options"} for r in rows}))
+            return
+        for r in rows:
+            rw = "/".join(x for x, ok in (("read", r["read"]), ("write", r["write"])) if ok)
+            lib = f"; needs {', '.join(r['requires'])}" + ("" if r["available"] else " (not installed)") \
+                if r["requires"] else ""
+            click.echo(f"{r['name']:<7} {', '.join(r['extensions']):<10} {rw:<10} stores {r['stores']}{lib}")
+            click.echo(f"        {r['description']}")
+        return
+    by_name = {r["name"]: r for r in rows}
+    if name not in by_name:
+        raise BrdftabError(f"unknown format {name!r}{suggest(name, by_name)}; valid: {', '.join(by_name)}")
+    r = by_name[name]
+    if as_json:
+        click.echo(json.dumps(r))
+        return
+    click.echo(f"{r['name']}: {r['description']}")
+    click.echo(f"  extensions: {', '.join(r['extensions'])}; stores {r['stores']}")
+    click.echo("options (-o KEY=VALUE with convert, KEY = VALUE in an [[output]] table):" if r["options"]
+               else "options: none")
+    for key, doc in r["options"].items():
+        click.echo(f"  {key}: {doc}")
 
 
 main.add_command(validate)

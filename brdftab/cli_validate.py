@@ -117,7 +117,7 @@ def origin_option(command):
                              "and their negative samples are reported, not refused.")(command)
 
 
-def _check_one(path: Path, layers, progress, origin=None):
+def _check_one(path: Path, layers, progress, origin=None, bar=False):
     """Reports for one input (a spec or a table file)."""
     import warnings
 
@@ -134,7 +134,7 @@ def _check_one(path: Path, layers, progress, origin=None):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BrdftabWarning)
         table = formats.read(path)
-    return [run_checks(table, layers, subject=str(path), origin=origin)]
+    return [run_checks(table, layers, subject=str(path), origin=origin, progress=bar)]
 
 
 def list_checks() -> str:
@@ -165,9 +165,11 @@ def list_checks() -> str:
 @click.option("--list-checks", "list_checks_", is_flag=True,
               help="List the checks, their levels and thresholds, and exit.")
 @click.option("--progress/--no-progress", default=False, help="Progress bar while a spec is tabulated.")
+@click.option("--quiet", "-q", is_flag=True,
+              help="No progress bar while the checks run (default: one on a terminal once they take over 1 s).")
 @origin_option
 @click.pass_context
-def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_checks_, progress, origin):
+def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_checks_, progress, quiet, origin):
     """Check BRDF tables and specs: reciprocity, energy, albedo, sample audit, symmetry,
     conventions and tabulation error.
 
@@ -191,7 +193,7 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
     reports = []
     for path in inputs:
         try:
-            reports += _check_one(path, layers, progress, origin)
+            reports += _check_one(path, layers, progress, origin, bar=not quiet and sys.stderr.isatty())
         except BrdftabError as exc:
             errors.append((str(path), exc))
         except OSError as exc:

@@ -389,3 +389,69 @@ def test_lambert_default_albedo(tmp_path):
     result = _cli("eval", spec, "--wi-deg", "30,0", "--wo-deg", "30,180", "--json")
     assert result.exit_code == 0, result.stderr
     assert json.loads(result.stdout)["channels"]["mono"] == pytest.approx(1.0 / np.pi)
+
+
+# -- formats, help that lists the choices, non-finite eval ---------------------------------------
+
+def test_formats_lists_every_format_and_one_formats_options():
+    from brdftab import formats
+
+    r = CliRunner().invoke(main, ["formats"])
+    assert r.exit_code == 0, r.output
+    for name, f in formats.FORMATS.items():
+        assert name in r.output and all(e in r.output for e in f.extensions)
+    assert "stores merl" in r.output and "needs OpenEXR" in r.output
+    r = CliRunner().invoke(main, ["formats", "merl"])
+    assert r.exit_code == 0 and "symmetrize" in r.output and "phi_h_average" in r.output
+    data = json.loads(CliRunner().invoke(main, ["formats", "rgl", "--json"]).output)
+    assert data["read"] and data["write"] and ".bsdf" in data["extensions"] and "resolution" in data["options"]
+    r = CliRunner().invoke(main, ["formats", "mrel"])
+    assert r.exit_code == 2 and "did you mean 'merl'" in r.output
+
+
+def test_help_lists_what_a_user_can_choose():
+    from brdftab import formats
+
+    out = CliRunner().invoke(main, ["convert", "--help"]).output
+    assert all(name in out for name in formats.FORMATS)
+    top = CliRunner().invoke(main, ["--help"]).output
+    for verb in ("tabulate", "convert", "eval", "info", "validate", "models", "grids", "formats"):
+        assert verb in top
+    assert "--origin" in CliRunner().invoke(main, ["validate", "--help"]).output
+    assert "--quiet" in CliRunner().invoke(main, ["validate", "--help"]).output
+
+
+def test_eval_of_missing_samples_exits_1_with_valid_json(tmp_path):
+    g = merl_grid()
+    path = tmp_path / "empty.binary"
+    path.write_bytes(np.array(g.shape, dtype="<i4").tobytes() + np.full((3,) + g.shape, -1.0).tobytes())
+    args = ["eval", str(path), "--wi-deg", "30,0", "--wo-deg", "30,180"]
+    r = _run(*args)
+    assert r.returncode == 1 and "not finite" in r.stderr and len(r.stderr.strip().splitlines()) == 1
+    r = _run(*args, "--json")
+    assert r.returncode == 1
+    doc = json.loads(r.stdout)      # valid JSON: null, not NaN
+    assert doc["finite"] is False and doc["channels"] == {"R": None, "G": None, "B": None}
+
+
+def test_checks_show_progress_only_when_asked_and_slow(monkeypatch, capsys):
+    import time as _time
+
+    from brdftab import checks
+    from brdftab.checks import run_checks
+
+    lam = brdftab.models.create("lambert", albedo=0.5)
+    real = checks.CHECKS["finite"].run
+
+    def slow(ctx, **kw):
+        _time.sleep(1.3)
+        return real(ctx, **kw)
+
+    monkeypatch.setattr(checks.CHECKS["finite"], "run", slow)
+    run_checks(lam, only=("finite", "non-negative"), progress=True)
+    assert "checking" in capsys.readouterr().err
+    run_checks(lam, only=("finite", "non-negative"), progress=False)
+    assert capsys.readouterr().err == ""
+    monkeypatch.setattr(checks.CHECKS["finite"], "run", real)
+    run_checks(lam, only=("finite", "non-negative"), progress=True)   # fast: the bar waits 1 s, never shows
+    assert capsys.readouterr().err == ""

@@ -365,7 +365,7 @@ def configure(*layers) -> dict:
 
 
 def run_checks(brdf, config=None, *, only=None, wavelengths=None, reference=None, subject: str = "",
-               origin: str | None = None) -> Report:
+               origin: str | None = None, progress: bool = False) -> Report:
     """Run the configured checks on ``brdf`` (a model or a table).
 
     ``config`` is one layer as :func:`configure` takes it, or a list of layers (later wins);
@@ -374,7 +374,8 @@ def run_checks(brdf, config=None, *, only=None, wavelengths=None, reference=None
     named in the table's provenance is used where available); ``subject`` names what is
     checked in the report; ``origin`` ("analytic", "measured", "unknown") overrides what the
     BRDF records about where its values come from (measured and unknown data get the
-    measured-data defaults of the reciprocity and non-negative checks).
+    measured-data defaults of the reciprocity and non-negative checks); ``progress`` shows a bar
+    on stderr, one step per check, once the run has taken more than a second.
     """
     merged = configure(config)
     if origin is not None:
@@ -384,13 +385,22 @@ def run_checks(brdf, config=None, *, only=None, wavelengths=None, reference=None
             raise ParameterError("origin", f"expected one of {', '.join(map(repr, ORIGINS))}, got {origin!r}")
     ctx = Context(brdf, wavelengths, reference, origin)
     report = Report(subject=subject or brdf.describe())
+    todo = [n for n in CHECKS if (only is None or n in only) and merged[n]["level"] != "off"]
+    bar = None
+    if progress and todo:
+        import sys
+
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), desc=f"checking {subject or brdf.name}"[:60], unit="check", delay=1.0,
+                   file=sys.stderr, leave=False)
     for name, check in CHECKS.items():
-        if only is not None and name not in only:
+        if name not in todo:
             continue
         cfg = dict(merged[name])
         level = cfg.pop("level")
-        if level == "off":
-            continue
+        if bar is not None:
+            bar.set_postfix_str(name, refresh=False)
         with warnings.catch_warnings():
             # quadrature and random pairs reach outside a table's domain on purpose: those
             # points evaluate to NaN and are left out (and counted) by the checks
@@ -402,6 +412,10 @@ def run_checks(brdf, config=None, *, only=None, wavelengths=None, reference=None
         if outcome.status == "fail" and level == "warn":
             outcome.status = "warn"
         report.outcomes.append(outcome)
+        if bar is not None:
+            bar.update(1)
+    if bar is not None:
+        bar.close()
     return report
 
 

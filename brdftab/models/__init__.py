@@ -2,9 +2,11 @@
 
 ``MODELS`` maps a model name to its class; :func:`create` builds one from keyword
 parameters (angles in radians), validating every value against the model's declared
-:class:`~brdftab.params.Param` list. One module per model family; shared microfacet parts
-live in :mod:`~brdftab.models.distributions`, :mod:`~brdftab.models.shadowing` and
-:mod:`~brdftab.models.fresnel`.
+:class:`~brdftab.params.Param` list. One module per model family; shared physics lives once
+and is imported: the microfacet components D, G, F in :mod:`~brdftab.models.components`
+(over the plain functions of :mod:`~brdftab.models.distributions` and
+:mod:`~brdftab.models.fresnel`), the Rayleigh–Rice factor in
+:mod:`~brdftab.models.rayleigh_rice`, the combinators in :mod:`~brdftab.models.combinators`.
 """
 
 from __future__ import annotations
