@@ -34,12 +34,30 @@ def load_spec(path):
 
 
 def from_spec(path) -> BRDF:
-    """The BRDF a spec file describes (its ``[model]``)."""
+    """The BRDF a spec file describes (its ``[model]``).
+
+    >>> import pathlib, tempfile, brdftab
+    >>> spec = pathlib.Path(tempfile.mkdtemp()) / "white.toml"
+    >>> _ = spec.write_text('[model]\\nname = "lambert"\\nalbedo = 0.5\\n[grid]\\ntype = "merl"\\n'
+    ...                     '[[output]]\\npath = "white.nc"\\n')
+    >>> brdftab.from_spec(spec)
+    lambert(albedo=0.5)
+    """
     return load_spec(path).model
 
 
 def open(path) -> Table:  # noqa: A001 - mirrors xarray.open_dataset / io.open naming
-    """Read a table from any supported file (format from magic bytes, then extension)."""
+    """Read a table from any supported file (format from magic bytes, then extension).
+
+    >>> import pathlib, tempfile, brdftab
+    >>> path = pathlib.Path(tempfile.mkdtemp()) / "white.binary"
+    >>> _ = brdftab.save(brdftab.models.create("lambert", albedo=0.5), path)   # MERL: its own grid
+    >>> table = brdftab.open(path)
+    >>> table.grid.describe(), table.channels
+    ('merl theta_h[90] x theta_d[90] x phi_d[180]', ('R', 'G', 'B'))
+    >>> round(float(table.eval([0, 0, 1], [0.6, 0, 0.8])[0]) * 3.141592653589793, 6)   # ρ = 0.5
+    0.5
+    """
     from . import formats
 
     return formats.read(path)
@@ -50,7 +68,20 @@ def save(brdf: BRDF, path, grid=None, *, format=None, overwrite=False, **options
 
     A table is written as it is when ``grid`` is None or equals its own grid; otherwise the
     BRDF is tabulated (resampled) on ``grid`` first. An existing file is replaced only with
-    ``overwrite=True``.
+    ``overwrite=True``. ``grid`` may be a grid, a type name or a ``[grid]`` table (a dict,
+    angles in degrees). Returns what was written (usually the table).
+
+    >>> import pathlib, tempfile, brdftab
+    >>> folder = pathlib.Path(tempfile.mkdtemp())
+    >>> ggx = brdftab.models.create("microfacet", alpha=0.3)
+    >>> table = brdftab.save(ggx, folder / "ggx.nc", grid={"type": "rusinkiewicz", "n_theta_h": 16,
+    ...                                                      "n_theta_d": 16, "n_phi_d": 32})
+    >>> table.values.shape
+    (16, 16, 32, 1)
+    >>> brdftab.save(ggx, folder / "ggx.nc", grid="merl")
+    Traceback (most recent call last):
+    ...
+    brdftab.errors.BrdftabError: ...ggx.nc: already exists (use --overwrite to replace it)
     """
     from . import formats
 

@@ -597,9 +597,7 @@ def grids(type_name, as_json):
         for n, cls in GRIDS.items():
             click.echo(f"{n:<{width}}  {cls.summary}")
         return
-    if type_name not in GRIDS:
-        raise BrdftabError(f"unknown grid type {type_name!r}{suggest(type_name, GRIDS)}; valid: {', '.join(GRIDS)}")
-    cls = GRIDS[type_name]
+    cls = GRIDS.get(type_name)
     params = tuple(cls.params) + COMMON_PARAMS
     rows = [{"key": p.spec_key, "expected": p.expected(), "default": p.to_json(None if p.required else p.default),
              "required": p.required, "used_when": p.used_when, "doc": p.doc} for p in params]

@@ -545,6 +545,14 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
     Works over the flattened grid in chunks of ``chunk_size`` samples, so memory beyond the
     output array stays bounded. ``progress``: True/False, or None for a bar on a terminal
     only; the bar appears once a tabulation has run for 2 s.
+
+    >>> from brdftab import models, tabulate
+    >>> from brdftab.grids import RusinkiewiczGrid
+    >>> table = tabulate(models.create("lambert", albedo=0.5), RusinkiewiczGrid(8, 8, 16), progress=False)
+    >>> table.values.shape, table.ds.attrs["phi_d_fold"], table.ds.attrs["origin"]
+    ((8, 8, 16, 1), 'reciprocity', 'analytic')
+    >>> bool(abs(table.values.max() * 3.141592653589793 - 0.5) < 1e-12)
+    True
     """
     check_grid(brdf, grid)
     lam = brdf.layout.resolve(wavelengths)

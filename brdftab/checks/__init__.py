@@ -37,6 +37,7 @@ import numpy as np
 from .._version import __version__
 from ..errors import BrdftabWarning, ParameterError, ValidationError
 from ..params import parse_params, suggest
+from ..registry import Registry
 
 __all__ = ["Check", "ChecksFailed", "Context", "Outcome", "Report", "CHECKS", "LEVELS", "STATUSES", "SCHEMA_PATH",
            "SCHEMA_VERSION", "register", "run_checks", "configure", "guard", "stamp", "load_schema", "run_document",
@@ -285,13 +286,13 @@ class Check:
         return Outcome(self.name, "skip", detail=why, data=data, family=self.family)
 
 
-#: Registered checks by name, in the order they run.
-CHECKS: dict = {}
+#: Registered checks by name, in the order they run (instances).
+CHECKS = Registry("check")
 
 
 def register(cls):
-    """Register a :class:`Check` subclass (usable as a decorator)."""
-    CHECKS[cls.name] = cls()
+    """Register a :class:`Check` subclass (usable as a decorator; the registry holds an instance)."""
+    CHECKS.register(cls(), name=cls.name)
     return cls
 
 
@@ -338,7 +339,7 @@ def configure(*layers) -> dict:
     for layer in flat:
         for name, cfg in (layer or {}).items():
             if name not in CHECKS:
-                raise ParameterError(name, f"unknown check{suggest(name, CHECKS)}; valid: {', '.join(CHECKS)}")
+                raise ParameterError(name, CHECKS.message(name))
             if not isinstance(cfg, dict):
                 raise ParameterError(name, "expected a table of level and thresholds")
             check = CHECKS[name]
@@ -376,6 +377,17 @@ def run_checks(brdf, config=None, *, only=None, wavelengths=None, reference=None
     BRDF records about where its values come from (measured and unknown data get the
     measured-data defaults of the reciprocity and non-negative checks); ``progress`` shows a bar
     on stderr, one step per check, once the run has taken more than a second.
+
+    >>> from brdftab import models
+    >>> from brdftab.checks import run_checks
+    >>> report = run_checks(models.create("lambert", albedo=0.5), only=("energy", "reciprocity"))
+    >>> report.passed, [o.status for o in report.outcomes]
+    (True, ['pass', 'pass'])
+    >>> round(report.get("energy").figure, 6)          # the largest directional albedo
+    0.5
+    >>> bright = models.create("scale", factor=2.5, term=models.create("lambert", albedo=0.5))
+    >>> run_checks(bright, only=("energy",)).summary()
+    'energy: max a(θi) = 1.25 at θi = 0°, channel mono (accepted ≤ 1.01); ...'
     """
     merged = configure(config)
     if origin is not None:
@@ -426,20 +438,21 @@ class ChecksFailed(ValidationError):
 
 
 def stamp(table, report: Report) -> None:
-    """Store a report in a table's metadata (netCDF global attributes): ``validation_passed``,
-    ``validation_summary``, ``validation_report`` (the JSON report) and, when the albedo was
-    computed, ``albedo_theta_i_deg``, ``albedo_values`` (a(θi) per channel, JSON) and
-    ``albedo_white_sky``."""
+    """Store a report in a table's metadata: the global attributes ``validation_passed`` (0 or
+    1), ``validation_summary`` and ``validation_report`` (the JSON report) and, when the albedo
+    was computed, the albedo curve as numbers other tools can plot: the variables
+    ``albedo[albedo_theta_i, channel]`` (a(θi), mean over φi; θi in rad) and
+    ``albedo_white_sky[channel]`` (see :func:`brdftab.table.set_albedo_curve`)."""
+    from ..table import set_albedo_curve
+
     attrs = table.ds.attrs
     attrs["validation_passed"] = int(report.passed)
     attrs["validation_summary"] = report.summary()
     attrs["validation_report"] = json.dumps(report.to_json(), separators=(",", ":"))
     alb = report.get("albedo")
     if alb is not None and alb.data.get("theta_i_deg") is not None:
-        attrs["albedo_theta_i_deg"] = json.dumps(alb.data["theta_i_deg"])
-        attrs["albedo_values"] = json.dumps(alb.data["values"])
-        attrs["albedo_white_sky"] = json.dumps(alb.data["white_sky"])
-        attrs["albedo_channels"] = json.dumps(alb.data["channels"])
+        set_albedo_curve(table.ds, alb.data["theta_i_deg"], alb.data["values"], alb.data.get("white_sky"),
+                         alb.data.get("channels"))
 
 
 def guard(source, config=None, *, allow_invalid: bool = False, what: str = "", **kwargs) -> Report:

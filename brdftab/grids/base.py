@@ -7,6 +7,7 @@ import math
 import numpy as np
 
 from ..errors import ParameterError
+from ..registry import Registry
 from ..params import Kind, Param, register_kind, suggest
 from .axis import LONG_NAMES, NODE_RULES, Axis
 
@@ -14,7 +15,7 @@ __all__ = ["Grid", "GRIDS", "register", "grid_from_config", "grid_from_dataset",
            "read_coordinate", "choice_attr"]
 
 #: Grid types by spec name (``[grid] type = ...``).
-GRIDS: dict = {}
+GRIDS = Registry("grid type", attr="type_name")
 
 class WavelengthsKind(Kind):
     """A list of wavelengths [nm], positive and strictly increasing."""
@@ -48,8 +49,7 @@ COMMON_PARAMS = (
 
 def register(cls):
     """Add a grid class to :data:`GRIDS` under ``cls.type_name`` (usable as a decorator)."""
-    GRIDS[cls.type_name] = cls
-    return cls
+    return GRIDS.register(cls)
 
 
 class Grid:
@@ -212,8 +212,7 @@ def grid_from_config(cfg: dict) -> Grid:
     """
     kind = cfg.get("type")
     if not isinstance(kind, str) or kind not in GRIDS:
-        raise ParameterError("type", f"expected one of {', '.join(map(repr, GRIDS))}, got {kind!r}"
-                             f"{suggest(kind, GRIDS)}")
+        raise ParameterError("type", GRIDS.message(kind))
     cls = GRIDS[kind]
     values = _parse_keys(cls, cfg)
     try:

@@ -49,8 +49,16 @@ def get(name: str):
 
 
 def create(name: str, **params):
-    """Build model ``name`` from keyword parameters (angles in radians).
+    """Build model ``name`` from keyword parameters (angles in radians), each checked against
+    the model's declared parameters.
 
-    Example: ``create("microfacet", distribution="ggx", alpha=0.3)``.
+    >>> from brdftab import models
+    >>> ggx = models.create("microfacet", distribution="ggx", alpha=0.3, fresnel="conductor", n=0.2, k=3.0)
+    >>> ggx.eval([0, 0, 1], [0, 0, 1]).round(3)    # D(n) F(0) / 4 = F(0) / (4π α²) [1/sr]
+    array([0.816])
+    >>> models.create("microfacet", alpah=0.3)
+    Traceback (most recent call last):
+    ...
+    brdftab.errors.ParameterError: alpah: unknown parameter for model 'microfacet' (did you mean 'alpha'?); valid: ...
     """
     return get(name)(**params)

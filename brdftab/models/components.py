@@ -28,27 +28,25 @@ import numpy as np
 from ..channels import Layout, combine_layouts
 from ..errors import ParameterError
 from ..params import Param, parse_params, suggest
+from ..registry import Registry
 from .distributions import d_beckmann, d_ggx, lambda_beckmann, lambda_ggx
 from .fresnel import fresnel_conductor, fresnel_dielectric, fresnel_schlick
 from .rayleigh_rice import q_unpolarized
 
 __all__ = ["COMPONENTS", "Component", "register", "get", "create", "Distribution", "Shadowing", "Fresnel"]
 
-#: Components by kind, then by name.
-COMPONENTS: dict = {"distribution": {}, "shadowing": {}, "fresnel": {}}
+#: Components by kind, then by name (one :class:`~brdftab.registry.Registry` per kind).
+COMPONENTS: dict = {kind: Registry(kind) for kind in ("distribution", "shadowing", "fresnel")}
 
 
 def register(cls):
     """Register a component class under ``COMPONENTS[cls.kind][cls.name]`` (a decorator)."""
-    COMPONENTS[cls.kind][cls.name] = cls
-    return cls
+    return COMPONENTS[cls.kind].register(cls)
 
 
 def get(kind: str, name: str):
-    table = COMPONENTS[kind]
-    if not isinstance(name, str) or name not in table:
-        raise ParameterError(kind, f"unknown {kind} {name!r}{suggest(name, table)}; valid: {', '.join(table)}")
-    return table[name]
+    """The component class ``name`` of ``kind`` (:class:`~brdftab.registry.UnknownName` if none)."""
+    return COMPONENTS[kind].get(name)
 
 
 def create(kind: str, name: str, **params):
