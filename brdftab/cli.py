@@ -21,7 +21,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from . import _atomic
+from . import _atomic, _signals
 from ._version import __version__
 from .cli_validate import check_options, cli_layer, origin_option, validate
 from .errors import BrdftabError
@@ -79,14 +79,16 @@ class _Group(click.Group):
         written_before = len(_atomic.completed())
         if prog_name is None:
             prog_name = "brdftab"
-        try:
-            previous = signal.signal(signal.SIGTERM, _atomic._raise_terminated)
-        except ValueError:  # not in the main thread
-            previous = None
         show = warnings.showwarning
         warnings.showwarning = _show_warning
         try:
-            code = self._main(args, prog_name, complete_var, written_before, **extra)
+            with _signals.handling():  # SIGINT -> KeyboardInterrupt, SIGTERM -> Terminated
+                code = self._main(args, prog_name, complete_var, written_before, **extra)
+                swallowed = _signals.pending()
+                if swallowed is not None and code not in (130, 143):  # a library lost its exception
+                    terminated = swallowed == signal.SIGTERM
+                    click.echo(_stopped("terminated" if terminated else "interrupted", written_before), err=True)
+                    code = 143 if terminated else 130
             with contextlib.suppress(Exception):
                 sys.stdout.flush()
         except BrokenPipeError:
@@ -94,8 +96,6 @@ class _Group(click.Group):
             code = 141
         finally:
             warnings.showwarning = show
-            if previous is not None:
-                signal.signal(signal.SIGTERM, previous)
         if not standalone_mode:
             return code
         sys.exit(code or 0)
@@ -114,10 +114,10 @@ class _Group(click.Group):
             _error(_one_line(exc.format_message()))
             return 2
         except click.Abort as exc:  # KeyboardInterrupt or EOF while click parsed the command line
-            terminated = isinstance(exc.__context__, _atomic.Terminated)
+            terminated = isinstance(exc.__context__, _signals.Terminated)
             click.echo(_stopped("terminated" if terminated else "interrupted", written_before), err=True)
             return 143 if terminated else 130
-        except _atomic.Terminated:
+        except _signals.Terminated:
             click.echo(_stopped("terminated", written_before), err=True)
             return 143
         except KeyboardInterrupt:
@@ -147,7 +147,7 @@ class _Group(click.Group):
             where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
             _error(f"{where}{exc.strerror or exc}")
             ctx.exit(2)
-        except _atomic.Terminated:
+        except _signals.Terminated:
             click.echo(_stopped("terminated", written_before), err=True)
             ctx.exit(143)
         except KeyboardInterrupt:

@@ -20,6 +20,8 @@ from pathlib import Path
 
 import click
 
+from ._atomic import atomic_path
+from ._locks import check_target
 from .errors import BrdftabError, ParameterError
 
 if sys.version_info >= (3, 11):
@@ -117,8 +119,9 @@ def origin_option(command):
                              "and their negative samples are reported, not refused.")(command)
 
 
-def _check_one(path: Path, layers, progress, origin=None, bar=False):
-    """Reports for one input (a spec or a table file)."""
+def _check_one(path: Path, layers, progress, origin=None, bar=False, reads=None):
+    """Reports for one input (a spec or a table file); ``reads`` (a list) gets the files a
+    spec's model reads."""
     import warnings
 
     from . import formats
@@ -130,6 +133,8 @@ def _check_one(path: Path, layers, progress, origin=None, bar=False):
         from .spec import load_spec
 
         spec = load_spec(path)
+        if reads is not None:
+            reads += spec.inputs
         return validate_spec(spec, checks=layers, progress=progress)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BrdftabWarning)
@@ -190,10 +195,14 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
     if junit is not None and not junit.parent.exists():
         raise BrdftabError(f"--junit {junit}: no such folder {junit.parent}")
     inputs, errors = expand_paths(paths)
+    # no report may replace a file this run reads (through .., symbolic or hard links too)
+    reads = [(p, "the input file") for p in inputs] + ([(config_file, "the --config file")] if config_file else [])
+    if junit is not None:
+        check_target(junit, overwrite=True, inputs=reads)
     reports = []
     for path in inputs:
         try:
-            reports += _check_one(path, layers, progress, origin, bar=not quiet and sys.stderr.isatty())
+            reports += _check_one(path, layers, progress, origin, bar=not quiet and sys.stderr.isatty(), reads=reads)
         except BrdftabError as exc:
             errors.append((str(path), exc))
         except OSError as exc:
@@ -210,6 +219,7 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
             click.echo(f"{len(reports)} checked: {len(reports) - failed} passed, {failed} failed; "
                        f"{len(errors)} could not be read")
     if junit is not None:
-        junit.write_text(junit_xml(reports, errors), encoding="utf-8")
+        with atomic_path(junit, overwrite=True, inputs=reads) as tmp:
+            tmp.write_text(junit_xml(reports, errors), encoding="utf-8")
     code = 2 if errors else (1 if any(not r.passed for r in reports) else 0)
     ctx.exit(code)

@@ -3,7 +3,7 @@
 Any readable format to any writable one (:mod:`brdftab.formats`; nothing here names a
 format). The steps:
 
-1. the output is checked and claimed before any work (:func:`brdftab._atomic.claim`): it may
+1. the output is checked and claimed before any work (:func:`brdftab._locks.claim`): it may
    not be the input (through links either), may not exist unless ``overwrite``, and may not be
    claimed by another run;
 2. the input is read and checked (:func:`brdftab.checks.run_checks`); its findings do not
@@ -39,7 +39,9 @@ from pathlib import Path
 import numpy as np
 
 from . import formats
-from ._atomic import check_target, claim, terminate_as_interrupt, write_progress
+from ._locks import check_target, claim
+from ._progress import write_progress
+from ._signals import terminate_as_interrupt
 from .brdf import BRDF
 from .models.combinators import Average
 from .errors import BrdftabError, ParameterError, ValidationError

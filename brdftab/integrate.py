@@ -54,8 +54,11 @@ where they are; the albedo is linear in f, so parts are integrated separately an
   population). The half-vector rule above is built in that frame (θi′, φi′ of R wi) and mapped
   back; nodes below the macro horizon are dropped (f = 0 there);
 * ``albedo_rule(wi, wavelengths=None)`` → (wo[N, 3], w[N] in sr): an outgoing rule the part
-  builds on its own features (a diffraction band's fringes), used instead of the generic one;
-  with several wavelengths it is built and used once per wavelength.
+  builds on its own features (a diffraction band's fringes, a gonio table's own cells), used
+  instead of the generic one; with several wavelengths it is built and used once per
+  wavelength. Its coverage is the fraction of its nodes with data, or — for a BRDF declaring
+  ``rule_coverage = "hemisphere"`` (tables: the rule covers their domain) — the projected
+  solid angle of the nodes with data over π.
 
 Missing samples
 ---------------
@@ -314,6 +317,7 @@ def _integrate_rule(brdf, theta_i, phi_i, wavelengths):
 
     rule = brdf.albedo_rule
     takes_lam = "wavelengths" in inspect.signature(rule).parameters
+    hemisphere = getattr(brdf, "rule_coverage", "rule") == "hemisphere"
     lams = [None] if wavelengths is None or np.ndim(wavelengths) == 0 or len(wavelengths) <= 1 or not takes_lam \
         else [[float(x)] for x in np.atleast_1d(wavelengths)]
     m = theta_i.size
@@ -328,6 +332,9 @@ def _integrate_rule(brdf, theta_i, phi_i, wavelengths):
             wo, proj = wo[keep], w[keep] * wo[keep, 2]
             f = brdf.eval(np.broadcast_to(wi[j], wo.shape), wo, use)
             aj, cj = _accumulate(f, proj)
+            if hemisphere:  # the rule covers the BRDF's domain: coverage of the hemisphere
+                valid = ~np.isnan(f)
+                cj = np.minimum(np.einsum("nc,n->c", valid.astype(float), proj) / np.pi, 1.0)
             cols_a.append(aj)
             cols_c.append(cj)
         aj, cj = np.concatenate(cols_a), np.concatenate(cols_c)

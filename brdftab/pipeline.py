@@ -14,7 +14,9 @@ import time
 from dataclasses import dataclass, field
 
 from . import formats
-from ._atomic import check_target, claim, same_file, terminate_as_interrupt, write_progress
+from ._locks import check_target, claim, same_file
+from ._progress import write_progress
+from ._signals import terminate_as_interrupt
 from .brdf import BRDF
 from .checks import Report, guard
 from .errors import BrdftabError

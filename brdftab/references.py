@@ -12,6 +12,8 @@ import re
 __all__ = ["REFERENCES", "cite", "keys_in"]
 
 REFERENCES = {
+    "Aspnes1983": "D. E. Aspnes, A. A. Studna, \"Dielectric functions and optical parameters of Si, Ge, GaP, GaAs, "
+                  "GaSb, InP, InAs, and InSb from 1.5 to 6.0 eV\", Phys. Rev. B 27, 985 (1983).",
     "Beckmann1963": "P. Beckmann, A. Spizzichino, The Scattering of Electromagnetic Waves from Rough Surfaces, "
                     "Pergamon (1963).",
     "Bitterling2024": "M. Bitterling et al., \"Physical models of the bidirectional reflectance of solar receiver "
@@ -31,6 +33,8 @@ REFERENCES = {
               "reflection\", SIGGRAPH (1991).",
     "Goodman2005": "J. W. Goodman, Introduction to Fourier Optics, 3rd ed., Roberts (2005), §4.4 (Fraunhofer "
                    "diffraction by rectangular apertures).",
+    "Heitz2016": "E. Heitz, J. Hanika, E. d'Eon, C. Dachsbacher, \"Multiple-scattering microfacet BSDFs with the "
+                 "Smith model\", ACM TOG 35(4) (2016).",
     "Heitz2014": "E. Heitz, \"Understanding the masking-shadowing function in microfacet-based BRDFs\", JCGT 3(2) "
                  "(2014).",
     "Koenderink1998": "J. J. Koenderink, A. J. van Doorn, \"Phenomenological description of bidirectional surface "

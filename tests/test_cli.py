@@ -111,8 +111,9 @@ def test_netcdf_layout_and_provenance(ggx_nc):
     for name in ("theta_h", "theta_d", "phi_d"):
         assert name in ds.coords
         assert ds[name].attrs["units"] == "rad"
-    assert "channel" in ds.coords
-    assert [str(c) for c in ds["channel"].values] == ["R", "G", "B"]
+    # channel names: the CF label variable channel_name over the dimension channel
+    assert "channel_name" in ds.coords and "channel" not in ds.variables
+    assert [str(c) for c in ds["channel_name"].values] == ["R", "G", "B"]
 
     attrs = ds.attrs
     assert attrs["parameterization"] == "rusinkiewicz"
@@ -367,7 +368,7 @@ def test_lambert_white_is_constant(tmp_path):
         ds = ds.load()
     v = ds["brdf"].values
     assert v.shape == (90, 90, 180, 1)
-    assert [str(c) for c in ds["channel"].values] == ["mono"]
+    assert [str(c) for c in ds["channel_name"].values] == ["mono"]
     # Every sample with both directions above the horizon is exactly albedo / pi. The
     # Rusinkiewicz/MERL grid also holds pairs with wi or wo below the horizon
     # (theta_h + theta_d > 90 deg); by the BRDF protocol those are stored as 0.

@@ -22,7 +22,7 @@ import xarray as xr
 from click.testing import CliRunner
 
 import brdftab
-from brdftab import _atomic, formats
+from brdftab import _locks, _progress, formats
 from brdftab.brdf import BRDF
 from brdftab.cli import main
 from brdftab.errors import BrdftabError
@@ -278,7 +278,7 @@ def test_unwritable_folder_is_refused_before_any_work(tmp_path, monkeypatch):
             raise PermissionError(13, "Permission denied", str(path))
         return real_open(path, *args, **kw)
 
-    monkeypatch.setattr(_atomic.os, "open", deny_locks)
+    monkeypatch.setattr(_locks.os, "open", deny_locks)
     monkeypatch.setattr("brdftab.pipeline.tabulate", _must_not_tabulate)
     with pytest.raises(BrdftabError) as exc:
         run(load_spec(_spec(tmp_path, output="x.nc")), progress=False)
@@ -295,7 +295,7 @@ def _must_not_tabulate(*args, **kwargs):
 STEPPED_WRITER = textwrap.dedent("""
     import sys, time
     from brdftab import formats
-    from brdftab._atomic import write_step
+    from brdftab._progress import write_step
     from brdftab.cli import main
 
     def stepped(table, path, **kw):
@@ -355,11 +355,11 @@ def test_netcdf_writer_reports_steps_and_writes_the_same_values(tmp_path, monkey
     monkeypatch.setattr(netcdf, "CHUNK_BYTES", 512)
     table = tabulate(brdftab.models.create("microfacet", alpha=0.3), RusinkiewiczGrid(12, 10, 16), progress=False)
     steps = []
-    _atomic._observers.append(lambda done, total: steps.append((done, total)))
+    _progress._observers.append(lambda done, total: steps.append((done, total)))
     try:
         brdftab.save(table, tmp_path / "a.nc", dtype="float32")
     finally:
-        _atomic._observers.pop()
+        _progress._observers.pop()
     total = table.values.size
     assert len(steps) > 5 and steps[0] == (0, total) and steps[-1] == (total, total)
     assert all(b[0] >= a[0] for a, b in zip(steps, steps[1:]))

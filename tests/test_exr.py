@@ -130,21 +130,31 @@ def test_header_attributes(exr_file):
     with OpenEXR.File(str(exr_file), header_only=True) as f:
         headers = [dict(p.header) for p in f.parts]
     assert len(headers) == 6
+    h = headers[0]  # the table's metadata, once
+    assert h["parameterization"] == "rusinkiewicz"
+    assert h["theta_h_spacing"] == "merl" and h["theta_h_warp"] == "sqrt"
+    assert h["x_axis"] == "theta_h" and h["y_axis"] == "theta_d" and h["y_origin"] == "bottom"
+    assert h["units"] == "sr-1" and h["angle_units"] == "rad"
+    assert h["cosine_included"] == 0
+    assert h["model"] == "microfacet"
+    assert json.loads(h["parameters"])["alpha"] == 0.3
+    assert json.loads(h["theta_h_rad"]) == GRID.axes[0].values.tolist()
+    assert h["channel_names"] == ["R", "G", "B"]
+    assert "Conventions" not in h  # a netCDF attribute
+    standard = {"channels", "compression", "dataWindow", "displayWindow", "lineOrder", "pixelAspectRatio",
+                "screenWindowCenter", "screenWindowWidth", "name", "type", "version", "chunkCount"}
     for k, h in enumerate(headers):
-        assert h["parameterization"] == "rusinkiewicz"
-        assert h["theta_h_spacing"] == "merl" and h["theta_h_warp"] == "sqrt"
-        assert h["x_axis"] == "theta_h" and h["y_axis"] == "theta_d" and h["y_origin"] == "bottom"
-        assert h["units"] == "sr-1" and h["angle_units"] == "rad"
-        assert h["cosine_included"] == 0
-        assert h["model"] == "microfacet"
-        assert json.loads(h["parameters"])["alpha"] == 0.3
+        # every part: its phi_d and the primaries of its RGB values; nothing repeated
+        if k:
+            assert set(h) - standard == {"phi_d_rad", "phi_d_deg", "phi_d_index", "n_phi_d", "chromaticities"}
+        assert h["chromaticities"] == pytest.approx((0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290), abs=1e-7)
         # numbers are doubles: 1-element float64 arrays, exact
-        for key, want in (("phi_d_rad", GRID.axes[2].values[k]), ("param.alpha", 0.3), ("param.n.2", 1.44248)):
+        for key, want in (("phi_d_rad", GRID.axes[2].values[k]),) + ((("param.alpha", 0.3), ("param.n.2", 1.44248))
+                                                                    if k == 0 else ()):
             assert isinstance(h[key], np.ndarray) and h[key].dtype == np.float64 and h[key].shape == (1,), key
             assert h[key][0] == want, key
         assert h["phi_d_deg"][0] == pytest.approx((k + 0.5) * 30)
-        assert json.loads(h["theta_h_rad"]) == GRID.axes[0].values.tolist()
-        assert h["channel_names"] == ["R", "G", "B"]
+        assert h["phi_d_index"] == k and h["n_phi_d"] == 6
 
 
 def test_openexr_sees_float_rgb_images_with_theta_d_upwards(exr_file):
@@ -230,7 +240,7 @@ def _rewrite(src, dst, edit_header=None, edit_channels=None, parts=None):
 
 
 def _drop(key):
-    return lambda k, h: h.pop(key)
+    return lambda k, h: h.pop(key, None)  # the table's metadata is in the first part only
 
 
 def _set(key, value):
@@ -286,3 +296,67 @@ def test_format_is_detected_by_magic(tmp_path, exr_file):
     other.write_bytes(exr_file.read_bytes())
     assert formats.detect(other).name == "exr"
     assert brdftab.open(other).grid.equals(GRID)
+
+
+# --- layout attributes of other writers: honoured or refused, never read as if absent -----------
+def test_top_origin_images_are_flipped(tmp_path, exr_file, table):
+    top = _rewrite(exr_file, tmp_path / "top.exr", edit_header=_set("y_origin", "top"),
+                   edit_channels=lambda k, ch: {n: a[::-1, :].copy() for n, a in ch.items()})
+    back = brdftab.open(top)
+    assert back.grid.equals(GRID)
+    np.testing.assert_array_equal(back.values, table.values.astype(np.float32))
+    # read as if the attribute were absent, the file would be upside down
+    plain = _rewrite(exr_file, tmp_path / "plain.exr",
+                     edit_channels=lambda k, ch: {n: a[::-1, :].copy() for n, a in ch.items()})
+    assert not np.array_equal(brdftab.open(plain).values, back.values)
+
+
+def test_theta_d_on_x_images_are_transposed(tmp_path, exr_file, table):
+    def swap(k, h):
+        h["x_axis"], h["y_axis"] = "theta_d", "theta_h"
+    # x = theta_d (columns), y = theta_h (bottom row = first node)
+    moved = _rewrite(exr_file, tmp_path / "swap.exr", edit_header=swap,
+                     edit_channels=lambda k, ch: {n: np.ascontiguousarray(a[::-1, :].T[::-1, :])
+                                                  for n, a in ch.items()})
+    with OpenEXR.File(str(moved), header_only=True) as f:
+        lo, hi = f.parts[0].header["dataWindow"]
+        assert (hi[0] + 1, hi[1] + 1) == (12, 16)  # width = theta_d nodes, height = theta_h nodes
+    back = brdftab.open(moved)
+    assert back.grid.equals(GRID)
+    np.testing.assert_array_equal(back.values, table.values.astype(np.float32))
+
+
+def test_declared_sqrt_warp_is_honoured_without_node_lists(tmp_path, exr_file, table):
+    def strip(k, h):
+        for key in ("theta_h_spacing", "theta_h_rad", "theta_d_rad"):
+            h.pop(key, None)
+    warped = _rewrite(exr_file, tmp_path / "warp.exr", edit_header=strip)
+    back = brdftab.open(warped)
+    assert back.grid.axes[0].warp == "sqrt"
+    np.testing.assert_allclose(back.grid.axes[0].values, merl_warp_nodes(16), rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(back.values, table.values.astype(np.float32))
+    w = half_diff_to_dirs(0.2, 0.5, np.radians(45))
+    assert back.eval(*w) == pytest.approx(table.eval(*w), rel=1e-6)
+    # without theta_h_warp the same pixels sit at linear nodes: a different BRDF
+    bare = _rewrite(exr_file, tmp_path / "bare.exr", edit_header=lambda k, h: [strip(k, h), h.pop("theta_h_warp", 0)])
+    assert brdftab.open(bare).grid.axes[0].warp == "linear"
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("y_origin", "left", "y_origin = 'left'"),
+    ("x_axis", "theta_i", "x_axis = 'theta_i'"),
+    ("pixel_position", "corner", "pixel_position = 'corner'"),
+    ("angle_units", "deg", "angle_units = 'deg'"),
+    ("cosine_included", 1, "cosine_included = 1"),
+    ("units", "1", "units = '1'"),
+    ("units", "percent", "units = 'percent'"),
+    ("theta_h_warp", "cubic", "theta_h_warp = 'cubic'"),
+    ("theta_h_warp", "linear", "theta_h_warp = 'linear' contradicts"),
+    ("chromaticities", (0.7347, 0.2653, 0.0, 1.0, 0.0001, -0.077, 0.32168, 0.33767), "chromaticities"),
+])
+def test_layout_attributes_that_cannot_be_honoured_are_refused(tmp_path, exr_file, key, value, message):
+    bad = _rewrite(exr_file, tmp_path / "bad.exr", edit_header=_set(key, value))
+    with pytest.raises(FormatError) as info:
+        brdftab.open(bad)
+    msg = str(info.value)
+    assert message in msg and str(bad) in msg and "\n" not in msg

@@ -239,6 +239,7 @@ def _huge(path, n_theta_h=2000):
             c[i] = x
         nc.createVariable("brdf", "f8", ("theta_h", "theta_d", "phi_d", "channel"), zlib=True,
                           chunksizes=(1, 90, 180, 3))
+        nc.variables["brdf"].units = "sr-1"  # without it the file does not say the values are f_r: refused
         nc.variables["brdf"][0] = np.ones((90, 180, 3))  # one slab written
         nc.setncatts({"parameterization": "rusinkiewicz", "grid": "huge", "theta_h_spacing": "merl",
                       "phi_d_fold": "reciprocity", "sample_position": "bin-centre"})

@@ -49,7 +49,9 @@ def test_cf_layout_and_float32(tmp_path):
                      "brdftab_version", "created"):
             assert attr in nc.ncattrs()
     ds = xr.open_dataset(path)
-    assert list(ds["channel"].values) == ["R", "G", "B"]
+    # channel names are a CF label (auxiliary coordinate), not a string coordinate variable
+    assert "channel" not in ds.variables and ds["brdf"].dims[-1] == "channel"
+    assert list(ds["channel_name"].values) == ["R", "G", "B"] and "channel_name" in ds["brdf"].coords
     ds.close()
 
 
@@ -114,3 +116,87 @@ def test_format_detected_by_magic_bytes(tmp_path):
     os.rename(tmp_path / "t.nc", path)
     assert formats.detect(path).name == "netcdf"
     assert brdftab.open(path).values.shape == (3, 3, 3, 3)
+
+
+# --- attributes of foreign files: honoured or refused, never read as if absent ------------------
+def _foreign(tmp_path, name, edit, spectral=False):
+    """A brdftab file edited with netCDF4 (as another writer would have left it)."""
+    path = tmp_path / name
+    if spectral:
+        m = models.create("lambert", albedo={"wavelengths_nm": [400, 700], "values": [0.2, 0.8]})
+        brdftab.save(tabulate(m, RusinkiewiczGrid(3, 3, 3), wavelengths=[400, 550, 700], progress=False), path)
+    else:
+        brdftab.save(GGX, path, grid=RusinkiewiczGrid(4, 4, 4))
+    with netCDF4.Dataset(path, "a") as nc:
+        edit(nc)
+    return path
+
+
+@pytest.mark.parametrize("edit, shown", [
+    (lambda nc: nc.variables["brdf"].setncattr("units", "1"), "units = '1'"),
+    (lambda nc: nc.variables["brdf"].setncattr("units", "percent"), "units = 'percent'"),
+    (lambda nc: nc.variables["brdf"].setncattr("units", "W m-2"), "units = 'W m-2'"),
+    (lambda nc: nc.variables["brdf"].delncattr("units"), "no 'units' attribute"),
+], ids=["one", "percent", "other", "missing"])
+def test_brdf_units_other_than_per_steradian_are_refused(tmp_path, edit, shown):
+    path = _foreign(tmp_path, "u.nc", edit)
+    with pytest.raises(FormatError, match="brdf") as info:
+        brdftab.open(path)
+    msg = str(info.value)
+    assert shown in msg and str(path) in msg and "\n" not in msg
+    from click.testing import CliRunner
+
+    from brdftab.cli import main
+
+    r = CliRunner().invoke(main, ["info", str(path)])
+    assert r.exit_code == 2 and r.stderr.count("\n") == 1 and shown in r.stderr
+
+
+@pytest.mark.parametrize("units", ["sr^-1", "1/sr", "sr-1"])
+def test_brdf_units_spelled_otherwise_are_honoured(tmp_path, units):
+    path = _foreign(tmp_path, "u.nc", lambda nc: nc.variables["brdf"].setncattr("units", units))
+    t = brdftab.open(path)
+    np.testing.assert_array_equal(t.values, tabulate(GGX, RusinkiewiczGrid(4, 4, 4), progress=False).values)
+
+
+@pytest.mark.parametrize("units, factor", [("um", 1e-3), ("µm", 1e-3), ("micrometer", 1e-3), ("m", 1e-9),
+                                           ("nanometer", 1.0)])
+def test_wavelengths_in_other_length_units_are_converted_to_nm(tmp_path, units, factor):
+    def edit(nc):
+        v = nc.variables["wavelength"]
+        v[:] = v[:] * factor
+        v.setncattr("units", units)
+    t = brdftab.open(_foreign(tmp_path, "w.nc", edit, spectral=True))
+    np.testing.assert_allclose(t.wavelengths, [400.0, 550.0, 700.0], rtol=1e-12)
+    # 0.55 um is 550 nm: the albedo there is 0.5, not an extrapolation (or refusal) at 0.55 nm
+    w = np.array([0.0, 0.0, 1.0])
+    assert t.eval(w, w, wavelengths=[550.0])[0] == pytest.approx(0.5 / np.pi, rel=1e-12)
+    assert t.ds["wavelength"].attrs["units"] == ("nm" if factor != 1.0 else units)
+
+
+@pytest.mark.parametrize("edit, shown", [
+    (lambda nc: nc.variables["wavelength"].delncattr("units"), "no 'units' attribute"),
+    (lambda nc: nc.variables["wavelength"].setncattr("units", "cm-1"), "units = 'cm-1'"),
+], ids=["missing", "wavenumber"])
+def test_wavelengths_without_a_length_unit_are_refused(tmp_path, edit, shown):
+    path = _foreign(tmp_path, "w.nc", edit, spectral=True)
+    with pytest.raises(FormatError, match="wavelength") as info:
+        brdftab.open(path)
+    assert shown in str(info.value) and "\n" not in str(info.value)
+
+
+def test_specular_reflectance_in_percent_is_converted(tmp_path):
+    m = models.create("he-torrance-1991", n=1.5, k=0.0, sigma0=0.1, tau=1.0, wavelength_nm=500.0)
+    path = tmp_path / "s.nc"
+    t = tabulate(m, RusinkiewiczGrid(3, 3, 3), progress=False)
+    brdftab.save(t, path)
+    with netCDF4.Dataset(path, "a") as nc:
+        v = nc.variables["specular_reflectance"]
+        v[:] = v[:] * 100
+        v.setncattr("units", "percent")
+    theta, rho = brdftab.open(path).specular_reflectance
+    np.testing.assert_allclose(rho, t.specular_reflectance[1], rtol=1e-12)
+    with netCDF4.Dataset(path, "a") as nc:
+        nc.variables["specular_reflectance"].setncattr("units", "sr-1")
+    with pytest.raises(FormatError, match="specular_reflectance' has units = 'sr-1'"):
+        brdftab.open(path)

@@ -12,7 +12,7 @@ import pytest
 
 import brdftab
 from brdftab import models
-from brdftab._atomic import deferred_signals
+from brdftab._signals import held_signals
 from brdftab.errors import BrdftabError, FormatError, ParameterError
 from brdftab.geometry import sph_to_vec
 from brdftab.grids import RusinkiewiczGrid, SphericalGrid, grid_from_config
@@ -81,7 +81,7 @@ def test_isotropic_table_rotates_phi_i_outside_its_nodes():
 def test_deferred_signals_hold_sigint_until_the_block_ends():
     reached_end = False
     with pytest.raises(KeyboardInterrupt):
-        with deferred_signals():
+        with held_signals():
             os.kill(os.getpid(), signal.SIGINT)
             time.sleep(0.05)
             reached_end = True

@@ -167,19 +167,20 @@ def test_tabulate_refuses_an_invalid_model_and_writes_it_with_allow_invalid(tmp_
     sub = {"$ref": "#/$defs/report", "$defs": load_schema()["$defs"]}
     assert validate_json(report, sub) == [] and jsonschema_errors(report, sub) == []
     assert [c["status"] for c in report["checks"] if c["name"] == "energy"] == ["fail"]
-    theta = json.loads(attrs["albedo_theta_i_deg"])
+    theta = np.degrees(t.ds["albedo_theta_i"].values)  # the albedo curve: numbers, not JSON text
     assert len(theta) == 90 and theta[-1] == pytest.approx(89.0)
-    assert np.allclose(json.loads(attrs["albedo_values"]), 1.2, atol=1e-4)
+    assert np.allclose(t.ds["albedo"].values, 1.2, atol=1e-4)
 
 
 def test_a_valid_export_stores_the_validation_summary_and_albedo_curve(tmp_path):
     spec = tmp_path / "white.toml"
     spec.write_text(BAD_SPEC.replace("factor = 1.5", "factor = 1.0").replace("bright.nc", "white.nc"))
     assert cli("tabulate", spec).exit_code == 0
-    attrs = brdftab.open(tmp_path / "white.nc").ds.attrs
+    ds = brdftab.open(tmp_path / "white.nc").ds
+    attrs = ds.attrs
     assert int(attrs["validation_passed"]) == 1 and attrs["validation_summary"].startswith("all checks passed")
-    assert np.allclose(json.loads(attrs["albedo_values"]), 0.8, atol=1e-4)
-    assert json.loads(attrs["albedo_white_sky"]) == pytest.approx([0.8], abs=1e-4)
+    assert np.allclose(ds["albedo"].values, 0.8, atol=1e-4)
+    assert ds["albedo_white_sky"].values.tolist() == pytest.approx([0.8], abs=1e-4)
 
 
 def test_list_checks_and_the_pre_commit_hook(files):

@@ -1,11 +1,14 @@
-"""Helpers for checks that look at a table's nodes."""
+"""Helpers for checks that look at a table's nodes: node weights and pairs, a curvature-corrected
+interpolant and a reciprocal surrogate (the reciprocity check's interpolated mode), errors
+near the horizon."""
 
 from __future__ import annotations
 
 import numpy as np
 
 __all__ = ["missing_mask", "data_values", "node_where", "match_axis", "rusinkiewicz_node_weights", "gonio_node_weights",
-           "phi_d_pairs", "cell_widths"]
+           "phi_d_pairs", "cell_widths", "CorrectedInterpolant", "reciprocal_surrogate", "horizon_pairs",
+           "horizon_error"]
 
 
 def missing_mask(table) -> np.ndarray:
@@ -224,3 +227,200 @@ def pair_directions(grid, coords):
     else:
         to, po = c["theta_o"], c["phi_o"]
     return sph_to_vec(ti, pi_), sph_to_vec(to, po)
+
+
+# -- a curvature-corrected interpolant (the reciprocity check's interpolated mode) --------------
+
+class CorrectedInterpolant:
+    """A table's multilinear interpolation and the same with its leading error term removed.
+
+    Multilinear interpolation at fraction p of a cell of width h along an axis is off by
+    ½ p(1 − p) h² f'' (+ higher orders) per axis; f'' is estimated at every node from the
+    second divided difference of its neighbours along the axis (in the axis' warped coordinate,
+    across the seam of periodic axes; copied from the neighbour at the ends of other axes),
+    interpolated to the query like the values, and the term subtracted. At the nodes both
+    agree with the stored values. Only nodes the table's interpolation uses take part (its
+    ``(values, valid)``: horizon ghosts included, missing samples left out); f'' is 0 where a
+    node lacks a valid 3-node stencil. The corrected value is not taken below 0 (below the
+    multilinear value where that is negative).
+
+    ``(wi, wo) → (linear, corrected)``, each ``[N, C]`` over the table's stored channels.
+    """
+
+    def __init__(self, table, values=None, valid=None):
+        if values is None:
+            values, valid = table._interp_data()
+        self.table = table
+        self.grid = table.grid
+        self.values = values
+        # a broadcast mask would be copied by every interpolation (reshape): materialize it once
+        self.valid = None if valid is None else np.ascontiguousarray(valid)
+        self.curvature = [_second_difference(values, self.valid, a, ax) if len(ax) >= 3 else None
+                          for a, ax in enumerate(self.grid.axes)]
+
+    def __call__(self, wi, wo):
+        from ..table import _data_nodes, _multilinear, _nearest_fill
+
+        axes = self.grid.axes
+        idx, _ = self.grid.locate(wi, wo, isotropic=self.table.isotropic)
+        fill = _nearest_fill(self.values, lambda: _data_nodes(self.grid, self.values, self.valid), axes)
+        linear = _multilinear(self.values, idx, axes, self.valid, fill=fill)  # as the table evaluates
+        corrected = np.array(linear, float, copy=True)
+        for a, cur in enumerate(self.curvature):
+            if cur is None:
+                continue
+            d2, has = cur
+            p, h = _cell_fraction(axes[a], idx[a])
+            f2 = _multilinear(d2, idx, axes, has)
+            corrected -= (0.5 * p * (1.0 - p) * h * h)[:, None] * np.nan_to_num(f2, nan=0.0, posinf=0.0, neginf=0.0)
+        # a BRDF is not negative: the correction may not take a value below 0 (or below the
+        # multilinear value where the table itself is negative)
+        np.maximum(corrected, np.minimum(linear, 0.0), out=corrected, where=np.isfinite(linear))
+        return linear, corrected
+
+
+def _warped(ax):
+    return _warp(ax, ax.values)
+
+
+def _cell_fraction(ax, x):
+    """Fraction ``p`` within its cell and the cell's width ``h`` (warped coordinate) of
+    fractional indices ``x`` along ``ax`` (as :func:`brdftab.table._multilinear` splits them)."""
+    t = _warped(ax)
+    n = t.size
+    i0 = np.floor(x).astype(np.intp)
+    if ax.period is not None:
+        p = x - i0
+        i0 %= n
+        tt = np.append(t, t[0] + ax.period)
+        return p, tt[i0 + 1] - tt[i0]
+    i0 = np.clip(i0, 0, n - 2)
+    p = np.clip(x - i0, 0.0, 1.0)
+    return p, t[i0 + 1] - t[i0]
+
+
+def _second_difference(values, valid, axis, ax):
+    """``(f'', has)``: the second divided difference of ``values`` along ``axis`` at every node
+    (warped coordinate; periodic axes wrap; the end nodes of other axes copy their neighbour)
+    and where it rests on three valid nodes (f'' is 0 elsewhere; ``has`` None when everywhere)."""
+    t = _warped(ax)
+    v = np.moveaxis(np.asarray(values, float), axis, 0)
+    ok = None if valid is None else np.moveaxis(np.asarray(valid, bool), axis, 0)
+    periodic = ax.period is not None
+    if periodic:
+        tt = np.concatenate([t, [t[0] + ax.period]])
+        slope = np.empty(v.shape)  # slope[j]: between nodes j and j + 1 (across the seam for the last)
+        np.subtract(v[1:], v[:-1], out=slope[:-1])
+        np.subtract(v[0], v[-1], out=slope[-1])
+    else:
+        tt = t
+        slope = np.diff(v, axis=0)
+    h = np.diff(tt)
+    shape = (-1,) + (1,) * (v.ndim - 1)
+    slope /= h.reshape(shape)
+    out = np.zeros(v.shape)
+    if periodic:  # node j: slopes j − 1 (wrapping) and j
+        hs = (h + np.roll(h, 1)).reshape(shape)
+        np.subtract(slope, np.roll(slope, 1, axis=0), out=out)
+        out *= 2.0 / hs
+    else:
+        hs = (h[1:] + h[:-1]).reshape(shape)
+        np.subtract(slope[1:], slope[:-1], out=out[1:-1])
+        out[1:-1] *= 2.0 / hs
+    good = np.isfinite(out)
+    if ok is not None:
+        three = ok & np.roll(ok, 1, axis=0) & np.roll(ok, -1, axis=0)
+        good &= three
+    if not periodic:
+        good[0] = good[-1] = False
+    np.copyto(out, 0.0, where=~good)
+    if not periodic:
+        out[0], good[0] = out[1], good[1]
+        out[-1], good[-1] = out[-2], good[-2]
+    out = np.ascontiguousarray(np.moveaxis(out, 0, axis))
+    return out, (None if good.all() else np.ascontiguousarray(np.moveaxis(good, 0, axis)))
+
+
+def reciprocal_surrogate(interp: CorrectedInterpolant, chunk: int = 1 << 16) -> CorrectedInterpolant:
+    """A reciprocal table of the same content and resolution as ``interp``'s table: at every
+    node holding data whose reverse pair lies in the table's domain, ½ (stored value + the
+    corrected interpolation at the reverse pair); elsewhere the stored value (horizon ghosts
+    recomputed from these values). Interpolating it both ways measures how much asymmetry the
+    table's resolution alone produces."""
+    from ..table import _horizon_ghosts
+
+    table, grid = interp.table, interp.grid
+    stored = np.asarray(table.values)
+    c = stored.shape[-1]
+    miss = table.missing if hasattr(table, "missing") else None
+    g = np.array(stored, float, copy=True).reshape(-1, c)
+    above = grid.node_above_horizon()
+    use = above.reshape(-1) if miss is None else (above & ~np.asarray(miss, bool).any(axis=-1)).reshape(-1)
+    for start in range(0, grid.size, chunk):
+        stop = min(start + chunk, grid.size)
+        sel = np.flatnonzero(use[start:stop])
+        if sel.size == 0:
+            continue
+        wi, wo = grid.directions(start, stop)
+        wi, wo = wi[sel], wo[sel]
+        _, outside = grid.locate(wo, wi, isotropic=table.isotropic)
+        keep = ~np.asarray(outside, bool)
+        if not keep.any():
+            continue
+        rows = start + sel[keep]
+        _, rev = interp(wo[keep], wi[keep])
+        fine = np.isfinite(rev)
+        g[rows] = np.where(fine, 0.5 * (g[rows] + np.where(fine, rev, 0.0)), g[rows])
+    g = g.reshape(stored.shape)
+    if above.all():
+        valid = None if miss is None else ~np.asarray(miss, bool)
+    else:
+        g, ok = _horizon_ghosts(g, above, grid, miss)
+        valid = np.broadcast_to(ok[..., None], g.shape)
+        if miss is not None:
+            valid = valid & ~np.asarray(miss, bool)
+    return CorrectedInterpolant(table, g, valid)
+
+
+# -- errors near the horizon (for the tabulation check's report) ---------------------------------
+
+def horizon_pairs(grid, n: int, seed: int = 0, band: float = np.radians(0.5), isotropic: bool = False):
+    """About ``n`` pairs ``(wi, wo)`` with θi or θo within ``band`` [rad] of the horizon (uniform
+    in cosθ there; the other direction uniform in cosθ over the hemisphere; azimuths uniform),
+    kept where they lie inside ``grid``'s domain."""
+    from ..geometry import sph_to_vec
+
+    rng = np.random.default_rng(seed)
+    near = np.arccos(rng.uniform(0.0, np.sin(band), n))
+    other = np.arccos(rng.uniform(0.0, 1.0, n))
+    swap = rng.random(n) < 0.5
+    ti, to = np.where(swap, near, other), np.where(swap, other, near)
+    wi = sph_to_vec(ti, rng.uniform(-np.pi, np.pi, n))
+    wo = sph_to_vec(to, rng.uniform(-np.pi, np.pi, n))
+    keep = (wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12)
+    _, outside = grid.locate(wi, wo, isotropic=isotropic)
+    keep &= ~np.asarray(outside, bool)
+    return wi[keep], wo[keep]
+
+
+def horizon_error(table, model, n: int = 8192, seed: int = 0, band: float = np.radians(0.5), wavelengths=None):
+    """A table against its model within ``band`` of the horizon (:func:`horizon_pairs`): the
+    largest relative error |t − m| / m where m > 0 and the pair where it occurs, and how many
+    such pairs the table reads as exactly 0. None when no pair lies in the table's domain
+    there. Returns ``{"band_deg", "points", "max_relative", "where", "zeros"}`` (``where`` as
+    :func:`~brdftab.checks._pairs.where_deg`)."""
+    from ._pairs import where_deg
+
+    wi, wo = horizon_pairs(table.grid, n, seed, band, getattr(table, "isotropic", False))
+    if wi.shape[0] == 0:
+        return None
+    t = np.asarray(table.eval(wi, wo, wavelengths), float)
+    m = np.asarray(model.eval(wi, wo, wavelengths), float)
+    pos = np.isfinite(t) & np.isfinite(m) & (m > 0)
+    if not pos.any():
+        return None
+    rel = np.divide(np.abs(t - m), m, out=np.zeros(m.shape), where=pos)
+    k = int(np.unravel_index(np.argmax(rel), rel.shape)[0])
+    return {"band_deg": float(np.degrees(band)), "points": int(pos.any(axis=-1).sum()),
+            "max_relative": float(rel.max()), "where": where_deg(wi[k], wo[k]),
+            "zeros": int(np.count_nonzero((t == 0) & pos))}

@@ -66,7 +66,8 @@ _SWEEP = (
 
 def sweep(ctx, theta_i_max, n_theta_i, n_phi_i):
     """Incidence angles and azimuths of the sweep [rad]. A table with incidence axes (a gonio
-    table) is swept only inside their domain, plus its own incidence nodes."""
+    table) is swept at its own incidence nodes (up to ``theta_i_max``): between them it holds
+    interpolations of its slices, not measured incidences."""
     theta = np.linspace(0.0, theta_i_max, n_theta_i)
     b = ctx.brdf
     phi = np.array([0.0]) if b.isotropic else np.arange(n_phi_i) * (2 * np.pi / n_phi_i)
@@ -74,12 +75,10 @@ def sweep(ctx, theta_i_max, n_theta_i, n_phi_i):
     if grid is not None and "theta_i" in grid.dims:
         ax = grid.axes[grid.dims.index("theta_i")]
         nodes = ax.values[ax.values <= theta_i_max + 1e-12]
-        theta = np.unique(np.concatenate([theta[~ax.outside(theta)], nodes]))
-        if theta.size == 0:
-            theta = ax.values[:1]
+        theta = nodes if nodes.size else ax.values[:1]
         pax = grid.axes[grid.dims.index("phi_i")]
         if not b.isotropic:
-            phi = np.unique(np.concatenate([phi[~pax.outside(phi)], pax.values]))
+            phi = np.asarray(pax.values, float)
     return theta, phi
 
 

@@ -28,7 +28,7 @@ from ..params import Param
 from . import Check, register
 from ._pairs import fmt_pair, where_deg
 from ._reference import reference
-from ._tables import axis_coordinate, pair_directions
+from ._tables import axis_coordinate, horizon_error, pair_directions
 
 __all__ = ["Tabulation", "cell_centres"]
 
@@ -124,6 +124,11 @@ class Tabulation(Check):
             if n2:
                 extra = f"; at the {', '.join(held)} nodes: rms {r2:.3g}, max {m2:.3g}"
                 data = {"rms_at_incidence_nodes": r2, "max_relative_at_incidence_nodes": m2}
+        h = horizon_error(t, model, points, seed, wavelengths=lam)
+        if h is not None:
+            extra += (f"; within {h['band_deg']:g}° of the horizon: max {h['max_relative']:.3g} at "
+                      f"{fmt_pair(h['where'])}" + (f", {h['zeros']} exact zeros" if h["zeros"] else ""))
+            data["horizon"] = h
         return self.outcome(ok, e_rms, rms, f"rms relative error of f cosθi cosθo {e_rms:.3g}, max {e_max:.3g}{at}, "
                             f"against {model.describe()} at {n} cell centres{extra} (accepted: {rms:g} / "
                             f"{max_relative:g})", rms=e_rms, max_relative=e_max, where=where, points=n,

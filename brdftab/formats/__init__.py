@@ -32,15 +32,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from .._atomic import atomic_path, check_target, deferred_signals
+from .._atomic import atomic_path
+from .._locks import check_target
+from .._signals import held_signals
 from ..errors import BrdftabError, FormatError, ParameterError
 from ..params import suggest
 
 __all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "write_prepared", "format_for",
            "target_grid", "prepare", "available", "naming"]
 
-#: Bytes of a file's head passed to ``magic`` and ``sniff``.
-HEAD_BYTES = 64
+#: Bytes of a file's head passed to ``magic`` and ``sniff`` (enough for the comment lines that
+#: start a Zemax ``.bsdf`` text file before its first keyword).
+HEAD_BYTES = 4096
 
 
 @dataclass(frozen=True)
@@ -246,13 +249,13 @@ def naming(path):
 def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, options: dict | None = None):
     """Write what :func:`prepare` returned to ``path`` atomically (no tabulation here)."""
     with atomic_path(path, overwrite=overwrite) as tmp:
-        with deferred_signals():
+        with held_signals(writing=Path(path).name):
             fmt.write(payload, tmp, **dict(options or {}))
 
 
 #: Format modules shipped with brdftab (each registers itself on import). A module whose
 #: optional library is missing must still import: it imports that library inside functions.
-BUILTIN = ("netcdf", "merl", "rgl", "exr")
+BUILTIN = ("netcdf", "merl", "rgl", "exr", "zemax")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")

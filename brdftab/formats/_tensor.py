@@ -149,9 +149,13 @@ def parse_tensor(data: bytes, where: str = "<bytes>") -> dict:
         entries[name] = (dtype, tuple(int(s) for s in shape), int(offset), int(count))
     fields = {}
     for name, (dtype, shape, offset, count) in entries.items():
-        if count == 0:
-            fields[name] = np.zeros(shape, dtype.newbyteorder("="))
-            continue
-        arr = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
-        fields[name] = arr.astype(dtype.newbyteorder("="), copy=True).reshape(shape)
+        try:
+            if count == 0:
+                fields[name] = np.zeros(shape, dtype.newbyteorder("="))
+                continue
+            arr = np.frombuffer(data, dtype=dtype, count=count, offset=offset)
+            fields[name] = arr.astype(dtype.newbyteorder("="), copy=True).reshape(shape)
+        except (ValueError, MemoryError, OverflowError):  # e.g. (0, 2**63) or more than 64 dimensions
+            raise FormatError(f"{where}: field {name!r} has a shape numpy cannot hold "
+                              f"({len(shape)} dimensions, up to {max(shape, default=0)})") from None
     return fields

@@ -5,9 +5,11 @@ x = θh (column 0 = first θh node), y = θd (the bottom scanline = first θd no
 bottom as in the BRDF Explorer), the centre of pixel (i, j) is node (θh_i, θd_j). Values are
 f_r in sr⁻¹ (no cosine) as float32, in channels R, G, B, Y (grey) or one channel per
 wavelength (``550nm``). A file with one φd is a single-part image; a file with several is a
-multi-part file with one part per φd. Each part's header records the parameterization, the
-θh warp and nodes, its φd, units, whether the cosine is included, and the model and its
-parameters (numbers as doubles: 1-element float64 arrays).
+multi-part file with one part per φd. The first part's header records the table once: the
+parameterization, the θh warp and nodes, units, whether the cosine is included, and the model
+and its parameters (numbers as doubles: 1-element float64 arrays); every part records its φd
+(and, for RGB, the Rec. 709 ``chromaticities``). Layout attributes of other writers are
+honoured (transposed or top-origin images, a declared θh warp) or refused with one line.
 
 Converting a table to ``.exr`` writes all of its φd nodes by default, and reading the file
 gives the table back (values exact at float32, grid equal). ``phi_d_deg`` chooses slices.
@@ -54,6 +56,11 @@ _LAYOUT = frozenset(
      "cosine_included", "quantity", "channel_names", "wavelengths_nm", "valid_min", "valid_max", "phi_d_rad",
      "phi_d_deg", "phi_d_index", "n_phi_d"]
     + [f"{a}_{s}" for a in AXES for s in ("rad", "node_rule", "domain_rad")])
+#: Table attributes that describe a netCDF file, not an EXR image (not written to EXR headers).
+_NETCDF_ONLY = frozenset(("Conventions",))
+#: The primaries and white point of brdftab's RGB (Rec. 709 / sRGB, D65; the luminance weights of
+#: :data:`brdftab.channels.RGB_LUMINANCE`): (red x, y, green x, y, blue x, y, white x, y).
+REC709 = (0.64, 0.33, 0.30, 0.60, 0.15, 0.06, 0.3127, 0.3290)
 #: Largest number of ``param.*`` attributes per part.
 MAX_PARAM_ATTRS = 256
 #: Largest φd slice count and image side a file may declare.
@@ -196,7 +203,7 @@ def _header(table, names) -> dict:
     hdr = {}
     for key, v in table.ds.attrs.items():
         val = _attr_value(v)
-        if val is not None and key not in _EXR_STANDARD and key not in _LAYOUT:
+        if val is not None and key not in _EXR_STANDARD and key not in _LAYOUT and key not in _NETCDF_ONLY:
             hdr[key] = val
     th = grid.axes[0]
     hdr.update({
@@ -226,7 +233,32 @@ def _header(table, names) -> dict:
         if key in table.ds["brdf"].attrs:
             hdr[key] = _double(np.asarray(table.ds["brdf"].attrs[key]).ravel()[0])
     hdr.update(_param_attrs(table.parameters))
+    hdr.update(_albedo_attrs(table.ds))
     return hdr
+
+
+def _albedo_attrs(ds) -> dict:
+    """The stored albedo curve (variables ``albedo``, ``albedo_white_sky``) as JSON text
+    attributes, the form EXR headers hold lists in; read back into the variables."""
+    from ..table import ALBEDO_DIM, ALBEDO_VAR, ALBEDO_WHITE_SKY
+
+    if ALBEDO_VAR not in ds.data_vars or ALBEDO_DIM not in ds.variables:
+        return {}
+    var = ds[ALBEDO_VAR]
+    labels = [str(x) for x in np.asarray(ds[var.dims[1]].values)] if var.dims[1] in ds.variables else []
+    if var.dims[1] == "wavelength":
+        labels = [f"{float(x):g} nm" for x in ds["wavelength"].values]
+
+    def plain(a):
+        return [None if not np.isfinite(x) else float(x) for x in np.asarray(a, float).ravel()]
+
+    theta = np.degrees(np.asarray(ds[ALBEDO_DIM].values, float)).round(9)
+    out = {"albedo_theta_i_deg": json.dumps(theta.tolist()),
+           "albedo_values": json.dumps([plain(row) for row in np.asarray(var.values, float)]),
+           "albedo_channels": json.dumps(labels)}
+    if ALBEDO_WHITE_SKY in ds.data_vars:
+        out["albedo_white_sky"] = json.dumps(plain(ds[ALBEDO_WHITE_SKY].values))
+    return out
 
 
 def write_exr(table, path, phi_d_deg=None):
@@ -242,14 +274,17 @@ def write_exr(table, path, phi_d_deg=None):
     names = _exr_channels(table)
     if len(set(names)) != len(names) or not all(names):
         raise FormatError(f"EXR channel names must be distinct and non-empty, got {names}")
-    common = _header(table, names)
-    common["compression"] = OpenEXR.ZIP_COMPRESSION
+    meta = _header(table, names)
+    image = {"compression": OpenEXR.ZIP_COMPRESSION}  # what every part has
+    if names == ["R", "G", "B"]:
+        image["chromaticities"] = REC709
     with np.errstate(over="ignore"):
         v32 = np.asarray(table.values).astype(np.float32)
     phi = table.grid.axes[2].values
     parts = []
     for k, p in enumerate(phi):
-        hdr = dict(common)
+        # the table's metadata once, in the first part; the others say only which phi_d they hold
+        hdr = {**(meta if k == 0 else {}), **image}
         hdr.update({"phi_d_rad": _double(p), "phi_d_deg": _double(np.degrees(p)), "phi_d_index": k,
                     "n_phi_d": int(phi.size)})
         # image row 0 is the top scanline: the last theta_d node
@@ -358,7 +393,7 @@ def _window(path, k, hdr):
     return w, h
 
 
-def _node_list(path, hdr, key, n):
+def _node_list(path, hdr, key, n, per):
     text = hdr.get(key)
     if text is None:
         return None
@@ -368,8 +403,7 @@ def _node_list(path, hdr, key, n):
         vals = None
     if (not isinstance(vals, list) or len(vals) != n
             or not all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in vals)):
-        raise FormatError(f"{path}: attribute {key} must be a JSON list of {n} angles in radians (one per "
-                          f"{'column' if key.startswith('theta_h') else 'row'})")
+        raise FormatError(f"{path}: attribute {key} must be a JSON list of {n} angles in radians (one per {per})")
     return np.asarray(vals, float)
 
 
@@ -442,6 +476,7 @@ def read_exr(path):
     if len(set(phis)) != len(phis):
         raise FormatError(f"{path}: two parts have the same phi_d")
     names, layout = _layout_of(path, first, set(first["channels"]))
+    _check_chromaticities(path, first, names)
     for k, hdr in enumerate(hdrs):
         gone = [n for n in names if n not in hdr["channels"]]
         if gone:
@@ -451,8 +486,10 @@ def read_exr(path):
     if decoded > 2 ** 28 and decoded > 2048 * size:
         raise FormatError(f"{path}: the header declares {decoded / 2**20:.0f} MiB of pixels in a file of "
                           f"{size:,} bytes")
-    th = _node_list(path, first, "theta_h_rad", w)
-    td = _node_list(path, first, "theta_d_rad", h)
+    swap, top, warp = _orientation(path, first)
+    n_th, n_td = (h, w) if swap else (w, h)
+    th = _node_list(path, first, "theta_h_rad", n_th, "row" if swap else "column")
+    td = _node_list(path, first, "theta_d_rad", n_td, "column" if swap else "row")
 
     def pixels():
         with OpenEXR.File(str(path), separate_channels=True) as f:
@@ -478,8 +515,80 @@ def read_exr(path):
                 what = getattr(img, "dtype", type(img).__name__)
                 raise FormatError(f"{path}: part {k}: channel {name!r} must be a {w} x {h} float image, got "
                                   f"{what} {getattr(img, 'shape', '')}")
-            values[:, :, slot, c] = img[::-1, :].T
-    return _table(path, first, values, th, td, np.asarray(phis)[order], layout)
+            values[:, :, slot, c] = (img if top else img[::-1, :]).T  # [x, y from the first y node]
+    if swap:  # x = theta_d, y = theta_h
+        values = np.ascontiguousarray(values.transpose(1, 0, 2, 3))
+    return _table(path, first, values, th, td, np.asarray(phis)[order], layout, warp)
+
+
+def _check_chromaticities(path, hdr, names) -> None:
+    """RGB values are read as Rec. 709 (OpenEXR's default when an image declares none); other
+    primaries would need a colour conversion brdftab does not make, so they are refused."""
+    chroma = hdr.get("chromaticities")
+    if chroma is None or names != ["R", "G", "B"]:
+        return
+    try:
+        xy = np.asarray(chroma, float).ravel()
+    except (TypeError, ValueError):
+        xy = np.zeros(0)
+    if xy.size != 8 or not np.allclose(xy, REC709, rtol=0, atol=1e-4):
+        shown = ", ".join(f"{x:.4g}" for x in xy) if xy.size else repr(chroma)
+        raise FormatError(f"{path}: attribute chromaticities = ({shown}): brdftab reads RGB in Rec. 709 primaries "
+                          "with a D65 white (0.64, 0.33, 0.3, 0.6, 0.15, 0.06, 0.3127, 0.329) only")
+
+
+def _text_attr(path, hdr, key, default):
+    v = hdr.get(key, default)
+    if not isinstance(v, str):
+        raise FormatError(f"{path}: attribute {key} = {v!r}: expected text such as {default!r}")
+    return v.strip()
+
+
+def _orientation(path, hdr):
+    """``(swap, top, theta_h_warp)`` from the layout attributes of a slice image: whether x is
+    θd (and y θh), whether the first y node is the top scanline, and the declared θh warp (or
+    None). A value brdftab cannot honour is refused with one line naming the attribute, never
+    read as if it were absent."""
+    from ..table import PER_STERADIAN
+
+    x = _text_attr(path, hdr, "x_axis", "theta_h")
+    y = _text_attr(path, hdr, "y_axis", "theta_h" if x == "theta_d" else "theta_d")
+    if (x, y) not in (("theta_h", "theta_d"), ("theta_d", "theta_h")):
+        raise FormatError(f"{path}: attributes x_axis = {x!r}, y_axis = {y!r}: brdftab reads theta_h x theta_d "
+                          "slices (x_axis and y_axis 'theta_h' and 'theta_d', either way round)")
+    origin = _text_attr(path, hdr, "y_origin", "bottom")
+    if origin not in ("bottom", "top"):
+        raise FormatError(f"{path}: attribute y_origin = {origin!r}: expected 'bottom' (the first {y} node is the "
+                          "bottom scanline) or 'top'")
+    pos = _text_attr(path, hdr, "pixel_position", "centre")
+    if pos not in ("centre", "center"):
+        raise FormatError(f"{path}: attribute pixel_position = {pos!r}: brdftab reads images whose pixel centres "
+                          "sit at the nodes ('centre')")
+    angles = _text_attr(path, hdr, "angle_units", "rad")
+    if angles.lower() not in ("rad", "radian", "radians"):
+        raise FormatError(f"{path}: attribute angle_units = {angles!r}: brdftab reads node angles in radians "
+                          "('rad'; the *_rad attributes)")
+    units = _text_attr(path, hdr, "units", "sr-1")
+    if units.lower().replace(" ", "") not in PER_STERADIAN:
+        raise FormatError(f"{path}: attribute units = {units!r}: brdftab reads f_r in 'sr-1' only (a dimensionless "
+                          "or percent value is a reflectance factor or a reflectance, not f_r)")
+    cos = hdr.get("cosine_included", 0)
+    flag = _scalar(cos) if not isinstance(cos, str) else {"0": 0.0, "false": 0.0, "no": 0.0}.get(cos.strip().lower())
+    if flag != 0.0:
+        raise FormatError(f"{path}: attribute cosine_included = {_shown(cos)}: the values are f_r times a cosine; "
+                          "brdftab reads f_r only (cosine_included = 0)")
+    warp = hdr.get("theta_h_warp")
+    if warp is not None:
+        warp = _text_attr(path, hdr, "theta_h_warp", "linear")
+        if warp not in ("linear", "sqrt"):
+            raise FormatError(f"{path}: attribute theta_h_warp = {warp!r}: expected 'linear' or 'sqrt' (x uniform "
+                              "in sqrt(theta_h / (pi/2)))")
+    return x == "theta_d", origin == "top", warp
+
+
+def _shown(v):
+    x = _scalar(v)
+    return f"{x:g}" if x is not None else repr(v)
 
 
 def _coord(hdr, name, vals):
@@ -493,7 +602,7 @@ def _coord(hdr, name, vals):
     return xr.Variable((name,), vals, attrs=attrs)
 
 
-def _table(path, hdr, values, th, td, phi, layout):
+def _table(path, hdr, values, th, td, phi, layout, warp=None):
     from ..table import Table
 
     attrs = {}
@@ -506,6 +615,8 @@ def _table(path, hdr, values, th, td, phi, layout):
             attrs[key] = int(v)
         elif _scalar(v) is not None and isinstance(v, (float, np.ndarray)):
             attrs[key] = _scalar(v)
+    if warp == "sqrt" and "theta_h_spacing" not in attrs:
+        attrs["theta_h_spacing"] = "merl"  # x uniform in sqrt(theta_h / (pi/2)): MERL's warp
     w, h = values.shape[:2]
     if th is None or td is None:  # nodes not listed: uniform nodes of the declared spacing and position
         try:
@@ -533,11 +644,15 @@ def _table(path, hdr, values, th, td, phi, layout):
             var_attrs[key] = x
     ds = xr.Dataset({"brdf": xr.Variable(AXES + (chan,), values, attrs=var_attrs)}, coords=coords, attrs=attrs)
     try:
-        return Table(ds)
+        table = Table(ds)
     except BrdftabError as exc:
         raise FormatError(f"{path}: {exc}") from None
     except (KeyError, ValueError, TypeError, IndexError) as exc:
         raise FormatError(f"{path}: not a brdftab BRDF slice image ({_first_line(str(exc))})") from None
+    if warp is not None and table.grid.axes[0].warp != warp:
+        raise FormatError(f"{path}: attribute theta_h_warp = {warp!r} contradicts the theta_h nodes "
+                          f"(theta_h_spacing = {table.grid.theta_h_spacing!r})")
+    return table
 
 
 register(FileFormat(

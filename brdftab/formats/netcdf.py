@@ -10,13 +10,16 @@ variable, float64). Values are zlib-compressed; ``dtype`` chooses float64
 
 from __future__ import annotations
 
+import datetime as _dt
+import json
 import math
+import warnings
 
 import netCDF4
 import numpy as np
 import xarray as xr
 
-from .._atomic import write_step
+from .._progress import write_step
 from ..errors import FormatError, ParameterError
 from . import FileFormat, register
 
@@ -75,37 +78,103 @@ def _chunking(shape, itemsize: int, target: int | None = None):
 
 
 def _attr(value):
+    """An attribute value in a type netCDF-3 (classic) has: integers (flags, counts) as int32
+    (float64 beyond its range), booleans as int32, text as NC_CHAR (UTF-8 bytes when it is not
+    ASCII; netCDF4 reads them back as the same text); anything else unchanged."""
     if isinstance(value, (bool, np.bool_)):
-        return int(value)
+        return np.int32(value)
+    if isinstance(value, (int, np.integer)):
+        return np.int32(value) if -2**31 <= int(value) < 2**31 else np.float64(value)
+    if isinstance(value, np.ndarray) and value.dtype.kind in "biu":
+        if value.size and (value.min() < -2**31 or value.max() >= 2**31):
+            return value.astype(np.float64)
+        return value.astype(np.int32)
+    if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
+        value = json.dumps(list(value))  # a list of strings would be NC_STRING (netCDF-4 only)
+    if isinstance(value, str) and not value.isascii():
+        return value.encode("utf-8")  # NC_CHAR holding UTF-8 (a non-ASCII str would become NC_STRING)
     return value
+
+
+def _attrs(attrs: dict) -> dict:
+    return {k: _attr(v) for k, v in attrs.items()}
+
+
+def _cf_layout(ds):
+    """The dataset as written: CF-conformant and netCDF-3-compatible types.
+
+    * A string dimension coordinate (``channel``) becomes the label variable ``channel_name``
+      (an auxiliary coordinate: CF coordinate variables are numeric), stored as a char array;
+    * integer attributes become int32 (netCDF-3 has no int64);
+    * ``Conventions = "CF-1.10"`` and a ``history`` line are present.
+
+    Returns ``(dataset, encoding of the char variables)``; ``ds`` is not changed."""
+    from ..table import LABEL_SUFFIX
+
+    out = ds.copy(deep=False)
+    chars = {}
+    for name in list(out.variables):
+        v = out.variables[name]
+        if v.dtype.kind not in "OSU":
+            continue
+        text = np.array([_text(c) for c in np.asarray(v.values).ravel()], dtype=object).reshape(v.shape)
+        target = name
+        if name in out.dims:
+            target = f"{name}{LABEL_SUFFIX}"
+            out = out.drop_vars(name).assign_coords({target: xr.Variable(v.dims, text, attrs=dict(v.attrs))})
+        else:
+            out[target] = xr.Variable(v.dims, text, attrs=dict(v.attrs))
+        chars[target] = {"dtype": "S1", "char_dim_name": f"{target}_strlen"}
+    for name in out.variables:
+        out[name].attrs = _attrs(out[name].attrs)
+    attrs = _attrs(out.attrs)
+    attrs["Conventions"] = "CF-1.10"
+    if not str(attrs.get("history", "")).strip():
+        from .._version import __version__
+
+        now = _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
+        attrs["history"] = f"{now} brdftab {__version__}: written as netCDF"
+    out.attrs = attrs
+    return out, chars
+
+
+def _text(c) -> str:
+    if isinstance(c, (bytes, np.bytes_)):
+        return bytes(c).decode("utf-8", "replace")
+    return str(c)
 
 
 def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
     """Write ``table`` to ``path``: coordinates and attributes through xarray, then ``brdf``
-    chunk by chunk (each chunk a :func:`~brdftab._atomic.write_step`, so progress is shown
+    chunk by chunk (each chunk a :func:`~brdftab._progress.write_step`, so progress is shown
     and an interrupt acts between chunks)."""
     check_options(dtype, complevel)
-    ds = table.ds
-    var = ds["brdf"]
-    encoding = {}
+    var = table.ds["brdf"]
+    ds, encoding = _cf_layout(table.ds)
     for name in ds.coords:
         if ds[name].dtype.kind == "f":
             encoding[name] = {"_FillValue": None}
     for name in ds.data_vars:  # auxiliary variables (e.g. merl_raw_ulp_correction): compressed, no fill
         if name != "brdf":
-            encoding[name] = {"zlib": complevel > 0, "complevel": complevel, "_FillValue": None}
-    ds.drop_vars("brdf").to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=encoding)
+            encoding[name] = {**encoding.get(name, {}), "zlib": complevel > 0, "complevel": complevel,
+                              "_FillValue": None}
+    rest = ds.drop_vars("brdf")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # xarray's note on coordinates no remaining variable uses: brdf will
+        rest.to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=encoding)
 
     store = np.dtype(dtype)
     k, step = _chunking(var.shape, store.itemsize)
     chunks = (1,) * k + (step,) + tuple(var.shape[k + 1:])
-    attrs = {key: _attr(v) for key, v in var.attrs.items()}
+    attrs = _attrs(var.attrs)
     aux = [c for c in ds.coords if c not in ds.dims and set(ds[c].dims) <= set(var.dims)]
     if aux:
         attrs["coordinates"] = " ".join(aux)
     total, done = int(var.size), 0
     write_step(0, total)
     with netCDF4.Dataset(path, "a") as nc:
+        if "coordinates" in nc.ncattrs():  # xarray lists coordinates no written variable uses: brdf does
+            nc.delncattr("coordinates")
         nc.set_auto_maskandscale(False)
         out = nc.createVariable("brdf", store, var.dims, zlib=complevel > 0, complevel=complevel, shuffle=True,
                                 chunksizes=chunks, fill_value=False)

@@ -18,6 +18,7 @@ from .combinators import Average, Rotated, Scale, Sum
 from .he_torrance import HeTorrance1991, ModifiedHeTorrance
 from .lambert import Lambert
 from .microfacet import Microfacet
+from .pyramid import PyramidMicrofacet
 from .small2021 import Small2021Diffraction, Small2021Peak, SolarCellSmall2021
 from .torrance_sparrow import TorranceSparrow1967
 from .zernike import ZernikeExpansion
@@ -36,7 +37,7 @@ def register(cls):
 
 for _cls in (Lambert, Microfacet, Sum, Scale, Average, Rotated, TorranceSparrow1967, Small2021Peak,
              Small2021Diffraction, SolarCellSmall2021, ZernikeExpansion, CookTorranceAlphaTheta, HeTorrance1991,
-             ModifiedHeTorrance):
+             ModifiedHeTorrance, PyramidMicrofacet):
     register(_cls)
 
 

@@ -82,6 +82,12 @@ class Microfacet(Model):
     def lobe_axes(self):
         return self.dist.axes
 
+    @property
+    def albedo_rule(self):
+        """The distribution's own outgoing quadrature rule, when it has one (a pyramid's four
+        facet lobes sit far from the mirror direction); else None (the generic rule)."""
+        return getattr(self.dist, "albedo_rule", None)
+
     def ndf(self, h):
         """The normal distribution D(h) [sr⁻¹] at unit microfacet normals ``h[..., 3]`` (0 where h_z <= 0)."""
         return self.dist.D(np.asarray(h, float))
