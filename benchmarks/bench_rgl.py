@@ -9,12 +9,13 @@ reporting the best and the median):
 
 1. ``brdftab.save(model, "x.bsdf")`` of the RGL recipe model (GGX α = 0.3 with Schlick
    F0 = (0.9, 0.6, 0.3) and height-correlated G2, plus Lambert (0.05, 0.1, 0.2)) as an
-   isotropic RGB file with 9 θi and 32 × 32 samples per θi (ndf/sigma 2 × 128, VNDF 64 × 64):
+   isotropic RGB file with 9 θi and 32 × 32 samples per θi (ndf/sigma 2 × 128, vndf 64 × 64):
    the whole export, including the atomic write;
-2. its parts: the ndf and sigma tables; the VNDF tables and their Marginal2D warp; warping
-   the 9 × 32 × 32 sample nodes and evaluating the model there; encoding the tensor file;
+2. its parts: the ndf and sigma tables (with the back-scattering bound); the vndf tables and
+   their Marginal2D warp; warping the 9 × 32 × 32 sample nodes and evaluating the model there;
+   encoding the tensor file;
 3. the same export with the NDF taken from the back-scattering (power iteration) instead of
-   the model's D, and an anisotropic export (17 φi × 9 θi, ndf/sigma 64 × 128);
+   the model's D, and an anisotropic export (17 φi × 9 θi, ndf/sigma 256 × 128);
 4. reading the file back and evaluating it (the reader's VNDF inversion) at 1e5 random pairs.
 
 It prints ``target < 0.5 s: PASS/MISS`` for the median of (1).
@@ -32,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 import brdftab
-from brdftab.formats import rgl
+from brdftab.formats import _rgl_write, rgl
 from brdftab.formats._marginal2d import Marginal2D
 from brdftab.formats._tensor import encode_tensor
 from _timing import timeit  # benchmarks/ is on sys.path when run as a script
@@ -83,14 +84,18 @@ def main(argv=None):
         o = rgl.check_options(**opts)
         th_i = o["theta_i"].astype(np.float32).astype(np.float64)
         ph_i = np.zeros(1)
-        ndf, _ = rgl._choose_ndf(model, "auto", None)
-        b, m, _ = timeit(lambda: rgl._ndf_tables(ndf, 128, 2, False, model.name), args.repeat)
+        ndf, _ = _rgl_write._choose_ndf(model, "auto", None)
+
+        def tables():
+            raised = rgl.backscatter_bound(model, ndf, None, 128, 2, False)
+            return _rgl_write._ndf_tables(raised, ndf, 128, 2, False, model.name)
+
+        b, m, _ = timeit(tables, args.repeat)
         report("  ndf + sigma tables (2 x 128)", b, m)
-        d, ndf32, sigma32 = rgl._ndf_tables(ndf, 128, 2, False, model.name)
-        sigma_interp = rgl._bilinear(sigma32)
+        d, ndf32, sigma32 = tables()
 
         def vndf_and_warp():
-            v = rgl._vndf_table(d, sigma_interp, th_i, ph_i, 64)
+            v = _rgl_write._vndf_table(d, th_i, ph_i, 64)
             return Marginal2D(v, (ph_i.astype(np.float32), th_i.astype(np.float32)))
 
         b, m, _ = timeit(vndf_and_warp, args.repeat)
@@ -98,7 +103,7 @@ def main(argv=None):
         warp = vndf_and_warp()
 
         def nodes_and_model():
-            wi, wo, u_m, _, _ = rgl._node_geometry(warp, th_i, ph_i, 32, True)
+            wi, wo, u_m, _, _ = rgl.node_geometry(warp, th_i, ph_i, 32, True)
             ok = wo[:, 2] > 0
             return model.eval(wi[ok], wo[ok])
 

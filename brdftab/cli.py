@@ -587,7 +587,6 @@ def models(name, as_json):
 def grids(type_name, as_json):
     """List the grid types, or show the [grid] keys of grid TYPE with their defaults."""
     from .grids import COMMON_PARAMS, GRIDS
-    from .params import suggest
 
     if type_name is None:
         if as_json:
@@ -639,8 +638,6 @@ def formats_(name, as_json):
     """List the file formats (extensions, the grid each stores, read/write, optional library),
     or show the options of format NAME (given to tabulate as [[output]] keys and to convert as
     -o KEY=VALUE)."""
-    from .params import suggest
-
     rows = _format_rows()
     if name is None:
         if as_json:
@@ -653,10 +650,10 @@ def formats_(name, as_json):
             click.echo(f"{r['name']:<7} {', '.join(r['extensions']):<10} {rw:<10} stores {r['stores']}{lib}")
             click.echo(f"        {r['description']}")
         return
-    by_name = {r["name"]: r for r in rows}
-    if name not in by_name:
-        raise BrdftabError(f"unknown format {name!r}{suggest(name, by_name)}; valid: {', '.join(by_name)}")
-    r = by_name[name]
+    from . import formats as fm
+
+    fm.FORMATS.get(name)  # an unknown name: one wording for every registry
+    r = {row["name"]: row for row in rows}[name]
     if as_json:
         click.echo(json.dumps(r))
         return

@@ -213,9 +213,7 @@ def build_model(table, where: str, path) -> BRDF:
     if name is None:
         raise _fail(path, f"{where}.name", f"missing model name; valid models: {', '.join(sorted(models.MODELS))}")
     if not isinstance(name, str) or name not in models.MODELS:
-        hint = suggest(name, models.MODELS) if isinstance(name, str) else ""
-        raise _fail(path, f"{where}.name", f"unknown model {name!r}{hint}; valid models: "
-                    f"{', '.join(sorted(models.MODELS))}")
+        raise _fail(path, f"{where}.name", models.MODELS.message(name))
     cls = models.MODELS[name]
     declared = {p.name: p for p in cls.params}
     by_spec_key = {p.spec_key: p for p in cls.params}

@@ -62,6 +62,7 @@ import xarray as xr
 from ._signals import read_array
 from ._version import __version__
 from .brdf import BRDF, ORIGINS
+from .quadrature import gauss_legendre
 from .channels import Layout
 from .errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
 from .grids import Grid, check_grid, grid_from_dataset
@@ -274,12 +275,13 @@ class Table(BRDF):
         None for other grids (the generic half-vector rule follows their lobes).
 
         A gonio table's lobes sit wherever its data put them (a pyramid's exit lobes, a tilted
-        peak), so its albedo is integrated on its own cells: one node at the centre of every
-        (θo, φo) cell (or (Δθo, Δφo) cell of a grid relative to the mirror direction), with
-        weight dθ dφ sinθ. The centre of a cell gives the mean of a bilinear interpolant over
-        it, so the rule is exact for the table's interpolant up to the variation of sinθ over a
-        cell; it covers the table's domain (its coverage is that domain's projected solid
-        angle)."""
+        peak), so its albedo is integrated on its own cells — every (θo, φo) cell (or (Δθo, Δφo)
+        cell of a grid relative to the mirror direction), weight dθ dφ sinθ: two Gauss–Legendre
+        nodes across each cell in θ, where the interpolant (linear in θ within a cell) meets the
+        weight sinθ cosθo, and the centre in φ (linear, constant weight). A GGX α = 0.1 gonio
+        table of 10° steps integrates to a fine quadrature of the same interpolant within 0.1 %
+        (tested). The rule covers the table's domain (its coverage is that domain's projected
+        solid angle)."""
         if getattr(self.grid, "parameterization", "") != "spherical":
             return None
         return self._gonio_rule
@@ -292,16 +294,19 @@ class Table(BRDF):
         ti, pi_ = (float(x) for x in vec_to_sph(wi))
         a_to, a_po = grid.axes[2], grid.axes[3]
 
-        def cells(ax):
+        def cells(ax, nodes):
             v = np.asarray(ax.values, float)
             if ax.period is not None and v.size > 1:
                 v = np.append(v, v[0] + ax.period)
             if v.size < 2:
                 return np.array([]), np.array([])
-            return 0.5 * (v[:-1] + v[1:]), np.diff(v)
+            x, w = gauss_legendre(nodes, 0.0, 1.0)
+            return (v[:-1, None] + np.diff(v)[:, None] * x).ravel(), (np.diff(v)[:, None] * w).ravel()
 
-        t_mid, dt = cells(a_to)
-        p_mid, dp = cells(a_po)
+        # 2 Gauss–Legendre nodes per cell in θ (f, linear there, meets sinθ cosθ), the centre
+        # in φ (f linear, the weight constant)
+        t_mid, dt = cells(a_to, 2)
+        p_mid, dp = cells(a_po, 1)
         if t_mid.size == 0 or p_mid.size == 0:
             return np.zeros((0, 3)), np.zeros(0)
         T, P = np.meshgrid(t_mid, p_mid, indexing="ij")

@@ -10,6 +10,10 @@ Independent references used here:
 * the microfacet D and Smith Λ of :mod:`brdftab.models.distributions` (closed forms) check the
   ``ndf`` and ``sigma`` tables and the power-iteration NDF.
 
+Every accuracy number of formats/rgl-bsdf.md (and of the docstrings in brdftab/formats/rgl*.py)
+is asserted by a test here, which names the claim; the tests print what they measure
+(``pytest -s tests/test_rgl.py``), and the documented "measured" values are those lines.
+
 Mitsuba is a declared test dependency: it is imported unconditionally, and a missing variant
 fails the run. Directions are rounded to float32 before both libraries see them.
 """
@@ -99,6 +103,24 @@ def rel_errors(got, ref, small):
     return np.abs(got[big] - ref[big]) / np.abs(ref[big]), np.abs(got[~big] - ref[~big])
 
 
+def assert_percentiles(label, rel, bounds):
+    """Each percentile q of ``rel`` (fractions) below ``bounds[q]``; prints what it measured
+    (``pytest -s``): the numbers of formats/rgl-bsdf.md come from these lines."""
+    got = {q: float(np.percentile(rel, q)) for q in bounds}
+    print(f"{label} (n = {rel.size}): " + ", ".join(f"p{q} {100 * v:.2f} %" for q, v in got.items()))
+    bad = {f"p{q}": f"{100 * v:.2f} % >= {100 * bounds[q]:g} %" for q, v in got.items() if not v < bounds[q]}
+    assert not bad, f"{label}: {bad}"
+
+
+def assert_reader_is_mitsuba(ours, ref):
+    """brdftab's reader against Mitsuba's eval of the same file: below 5e-5 relative (float32
+    arithmetic in Mitsuba, float64 here) and 1e-6 absolute where Mitsuba's value is tiny."""
+    rel, absolute = rel_errors(ours, ref, 1e-6)
+    print(f"reader vs Mitsuba: max relative {rel.max():.2g}")
+    assert rel.max() < 5e-5, f"our reader vs Mitsuba: max relative error {rel.max():.3g}"
+    assert np.max(absolute, initial=0.0) < 1e-6
+
+
 @pytest.fixture(scope="module")
 def files(tmp_path_factory):
     return tmp_path_factory.mktemp("rgl")
@@ -123,31 +145,64 @@ def test_mitsuba_rgb_matches_model_and_our_reader(rgb_file):
         ref = mitsuba_eval(rgb_file, wi, wo)
     analytic = model.eval(wi, wo) * wo[:, 2:3]
     rel, _ = rel_errors(ref, analytic, 1e-4)
-    # measured: median 0.40 %, 75th percentile 1.2 %
-    assert np.median(rel) < 0.01, f"Mitsuba vs model: median relative error {np.median(rel):.3%}"
-    assert np.percentile(rel, 75) < 0.03, f"Mitsuba vs model: 75th percentile {np.percentile(rel, 75):.3%}"
+    # formats/rgl-bsdf.md, Guarantees, table row "GGX α = 0.3 ... RGB"
+    assert_percentiles("recipe RGB, Mitsuba vs model", rel, {50: 0.005, 75: 0.012, 90: 0.03, 95: 0.05})
 
     ours = brdftab.open(rgb_file)
     assert isinstance(ours, rgl.RGLBSDF) and ours.isotropic and ours.channels == ("R", "G", "B")
-    mine = ours.eval_cos(wi, wo)
-    rel, absolute = rel_errors(mine, ref, 1e-6)
-    # measured: max 1.3e-5 (float32 in Mitsuba, float64 here)
-    assert rel.max() < 1e-4, f"our reader vs Mitsuba: max relative error {rel.max():.3g}"
-    assert np.max(absolute, initial=0.0) < 1e-6
+    assert_reader_is_mitsuba(ours.eval_cos(wi, wo), ref)  # formats/rgl-bsdf.md: "evaluates like Mitsuba"
+
+
+def file_albedo(bsdf, wi, n=300):
+    """∫ f·cosθo dωo of a file as Mitsuba evaluates it (``eval_cos``, no hold): Gauss–Legendre
+    in cosθo × the midpoint rule in φo."""
+    from brdftab.quadrature import gauss_legendre
+
+    mu, wmu = gauss_legendre(n, 0.0, 1.0)
+    ph = (np.arange(2 * n) + 0.5) * np.pi / n
+    wo = rgl.sph(np.arccos(mu)[:, None], ph[None, :]).reshape(-1, 3)
+    w = (wmu[:, None] * np.full(2 * n, np.pi / n)).ravel()
+    return bsdf.eval_cos(np.broadcast_to(wi, wo.shape), wo).T @ w
 
 
 def test_mitsuba_albedo_matches_quadrature_of_the_model(rgb_file):
-    """Mitsuba's sample() (luminance and VNDF warps of our file) integrates to the model's albedo."""
+    """Mitsuba's sample() (luminance and vndf warps of our file, 64 × 64 stratified samples)
+    integrates to the file's own albedo (a fine quadrature of its eval) and to the model's
+    (formats/rgl-bsdf.md, Guarantees, "Albedo"). brdftab's reader, which holds f beyond
+    θ_hold, gives the model's albedo too."""
     model = recipe_model()
     ours = brdftab.open(rgb_file)
+    # the same file with the luminance of the column x = 0 (m = the normal) set to the slice
+    # floor, as a weight evaluated at the node itself would make it (formats/rgl-bsdf.md, writer
+    # step 5): that starves the first column of samples and biases the sampled albedo low
+    starved = rgb_file.parent / "starved.bsdf"
+    fields = dict(ours.fields)
+    lum = fields["luminance"].copy()
+    lum[..., 0] = 1e-6 * lum.max(axis=(2, 3))[..., None]
+    fields["luminance"] = lum
+    starved.write_bytes(encode_tensor(fields))
+    sampling, tabulation, total, held, bias = [], [], [], [], []
     for theta in np.radians([20.0, 47.0, 70.0]):  # 47° lies between two stored θi
         wi = _f32([np.sin(theta), 0.0, np.cos(theta)])
         with mi.variant_context("scalar_rgb"):
             got = mitsuba_albedo(rgb_file, wi)
+            low = mitsuba_albedo(starved, wi)
         ref = directional_albedo(model, wi, lobe_width=0.3, n_theta=128, n_phi=128)
-        assert np.all(np.abs(got / ref - 1) < 0.01), (np.degrees(theta), got, ref)  # measured <= 0.13 %
-        mine = directional_albedo(ours, wi, n_theta=128, n_phi=256)
-        assert np.all(np.abs(mine / ref - 1) < 0.01), (np.degrees(theta), mine, ref)  # measured <= 0.4 %
+        own = file_albedo(ours, wi)
+        sampling.append(got / own - 1)
+        tabulation.append(own / ref - 1)
+        total.append(got / ref - 1)
+        held.append(directional_albedo(ours, wi, n_theta=128, n_phi=256) / ref - 1)
+        bias.append(low / own - 1)
+    print(f"starved first column, sampled albedo vs the file's: {np.array2string(100 * np.array(bias), precision=2)} %")
+    assert np.all(np.array(bias) < -0.005), bias
+    for label, err, bound in (("Mitsuba's sampled albedo vs the file's", sampling, 0.002),
+                              ("the file's albedo vs the model's", tabulation, 0.005),
+                              ("Mitsuba's sampled albedo vs the model's", total, 0.005),
+                              ("albedo of brdftab's reader (held f) vs the model's", held, 0.005)):
+        err = np.array(err)
+        print(f"{label}: {np.array2string(100 * err, precision=2)} %")
+        assert np.all(np.abs(err) < bound), (label, err)
 
 
 def spectral_model():
@@ -173,11 +228,11 @@ def test_mitsuba_spectral_matches_model_and_our_reader(files):
         ref = mitsuba_eval(path, wi, wo, lam)
     analytic = model.eval(wi, wo, lam) * wo[:, 2:3]
     rel, _ = rel_errors(ref, analytic, 1e-4)
-    assert np.median(rel) < 0.01, f"Mitsuba vs model: median {np.median(rel):.3%}"  # measured 0.5 %
+    # formats/rgl-bsdf.md, Guarantees, table row "the same, spectral"
+    assert_percentiles("recipe spectral, Mitsuba vs model", rel, {50: 0.005, 75: 0.012, 90: 0.03, 95: 0.05})
     ours = brdftab.open(path)
     assert ours.spectral and ours.channels is None
-    rel, absolute = rel_errors(ours.eval_cos(wi, wo, lam), ref, 1e-6)
-    assert rel.max() < 1e-4 and np.max(absolute, initial=0.0) < 1e-6, rel.max()
+    assert_reader_is_mitsuba(ours.eval_cos(wi, wo, lam), ref)
     with pytest.raises(ParameterError, match="outside the file's wavelengths"):
         ours.eval(wi[:1], wo[:1], [380.0])
 
@@ -204,20 +259,91 @@ def test_mitsuba_anisotropic_matches_model_and_our_reader(files):
     brdftab.save(model, path)
     raw = parse_tensor(path.read_bytes())
     assert raw["phi_i"].size == 17 and raw["phi_i"][0] == np.float32(-np.pi) and raw["phi_i"][-1] == np.float32(np.pi)
-    assert raw["ndf"].shape == (64, 128)
+    assert raw["ndf"].shape == (256, 128)
     wi, wo = direction_pairs(3, 0.15, 0.4, n=500)
     with mi.variant_context("scalar_rgb"):
         ref = mitsuba_eval(path, wi, wo)
     analytic = model.eval(wi, wo) * wo[:, 2:3]
     rel, _ = rel_errors(ref, analytic, 1e-4)
-    assert np.median(rel) < 0.01, f"Mitsuba vs model: median {np.median(rel):.3%}"  # measured 0.4 %
+    # formats/rgl-bsdf.md, Guarantees, table row "GGX αx = 0.15, αy = 0.4"
+    assert_percentiles("GGX 0.15/0.4, Mitsuba vs model", rel, {50: 0.005, 75: 0.02, 90: 0.06, 95: 0.2})
     swapped = create("microfacet", alpha_x=0.4, alpha_y=0.15, fresnel="schlick", f0=[0.9, 0.6, 0.3])
     rel_sw, _ = rel_errors(ref, swapped.eval(wi, wo) * wo[:, 2:3], 1e-4)
     assert np.median(rel_sw) > 0.1  # the test tells the axes apart
     ours = brdftab.open(path)
     assert not ours.isotropic
-    rel, absolute = rel_errors(ours.eval_cos(wi, wo), ref, 1e-6)
-    assert rel.max() < 1e-4 and np.max(absolute, initial=0.0) < 1e-6, rel.max()
+    assert_reader_is_mitsuba(ours.eval_cos(wi, wo), ref)
+
+
+def test_narrow_anisotropic_lobe(files):
+    """GGX αx = 0.05, αy = 0.3, default options (formats/rgl-bsdf.md, Guarantees, "Narrow
+    anisotropic lobes"): Mitsuba's eval against the model, split where the tail begins (either
+    direction beyond 80°). The 256 φ rows of the ndf table carry the median: with 64 rows it is
+    4× larger."""
+    model = create("microfacet", alpha_x=0.05, alpha_y=0.3, fresnel="schlick", f0=[0.9, 0.6, 0.3])
+    path = files / "narrow.bsdf"
+    brdftab.save(model, path)
+    wi, wo = direction_pairs(11, 0.05, 0.3, n=600)
+    with mi.variant_context("scalar_rgb"):
+        ref = mitsuba_eval(path, wi, wo)
+    analytic = model.eval(wi, wo) * wo[:, 2:3]
+    big = np.abs(analytic) > 1e-4 * np.abs(analytic).max()
+    rel = np.where(big, np.abs(ref - analytic) / np.where(big, analytic, 1.0), np.nan)
+    steep = (np.minimum(wi[:, 2], wo[:, 2]) < np.cos(np.radians(80.0)))[:, None] & big
+    assert_percentiles("narrow lobe, all pairs", rel[big], {50: 0.005, 95: 0.13})
+    assert_percentiles("narrow lobe, θi, θo <= 80°", rel[big & ~steep], {50: 0.004, 75: 0.01, 95: 0.03})
+    assert_percentiles("narrow lobe, θi or θo > 80°", rel[steep], {50: 0.04, 95: 0.25})
+    coarse = rgl.RGLBSDF(rgl.prepare_rgl(model, ndf_phi_resolution=64).fields)
+    rel64 = np.abs(coarse.eval_cos(wi, wo) - analytic)[big] / analytic[big]
+    print(f"narrow lobe, median with 64 ndf rows / with 256: {np.median(rel64) / np.median(rel[big]):.1f}")
+    assert np.median(rel64) > 3 * np.median(rel[big])
+
+
+def grazing_pairs(seed, which, lo, hi, n=400):
+    """``n`` pairs with θo (``which = "o"``) or θi (``"i"``) uniform in [lo, hi] degrees and
+    the other direction uniform over cosθ >= MIN_COS; float32-exact unit vectors."""
+    rng = np.random.default_rng(seed)
+    steep = rgl.sph(np.radians(rng.uniform(lo, hi, n)), rng.uniform(-np.pi, np.pi, n))
+    c = rng.uniform(MIN_COS, 1.0, n)
+    other = rgl.sph(np.arccos(c), rng.uniform(-np.pi, np.pi, n))
+    wi, wo = (other, steep) if which == "o" else (steep, other)
+    wi, wo = _f32(wi), _f32(wo)
+    return wi / np.linalg.norm(wi, axis=-1, keepdims=True), wo / np.linalg.norm(wo, axis=-1, keepdims=True)
+
+
+#: formats/rgl-bsdf.md, Guarantees, "Grazing directions": (direction, band in degrees) ->
+#: tested bounds of the relative error of Mitsuba's f·cosθo, per source model.
+GRAZING_BOUNDS = {
+    ("o", 80.0, 87.0): {"recipe": {50: 0.04, 95: 0.25}, "lambert": {50: 0.05, 95: 0.3}},
+    ("o", 87.0, 89.5): {"recipe": {50: 0.4, 95: 2.5}, "lambert": {50: 0.55, 95: 2.8}},
+    ("i", 80.0, 87.0): {"recipe": {50: 0.005, 95: 0.07}, "lambert": {50: 0.005, 95: 0.09}},
+    ("i", 87.0, 89.9): {"recipe": {50: 0.005, 95: 0.35}, "lambert": {50: 0.005, 95: 0.5}},
+}
+
+
+@pytest.mark.parametrize("source", ["recipe", "lambert"])
+def test_grazing_directions(files, rgb_file, source):
+    """Mitsuba's eval of our files against the model in bands of grazing θo and θi (the other
+    direction uniform over cosθ >= 0.05). Grazing ωo is the format's weak spot: f·cosθo -> 0
+    at the horizon, but the cell of N × N samples that straddles it interpolates towards a node
+    below it, which stores 0. Grazing ωi alone (ωo within 70° of the normal) is accurate."""
+    if source == "recipe":
+        model, path = recipe_model(), rgb_file
+    else:
+        model, path = create("lambert", albedo=[0.2, 0.5, 0.8]), files / "lambert-grazing.bsdf"
+        brdftab.save(model, path)
+    for (which, lo, hi), bounds in GRAZING_BOUNDS.items():
+        wi, wo = grazing_pairs(21 if which == "o" else 22, which, lo, hi)
+        with mi.variant_context("scalar_rgb"):
+            ref = mitsuba_eval(path, wi, wo)
+        analytic = model.eval(wi, wo) * wo[:, 2:3]
+        big = np.abs(analytic) > 1e-4 * np.abs(analytic).max()
+        rel = np.abs(ref - analytic)[big] / analytic[big]
+        assert_percentiles(f"{source}, θ{which} in [{lo:g}, {hi:g}]°", rel, bounds[source])
+        if which == "i" and lo == 87.0:
+            near = big & (wo[:, 2] >= np.cos(np.radians(70.0)))[:, None]
+            rel = np.abs(ref - analytic)[near] / analytic[near]
+            assert_percentiles(f"{source}, θi in [{lo:g}, {hi:g}]°, θo <= 70°", rel, {50: 0.005, 95: 0.03})
 
 
 @pytest.mark.parametrize("reduction, keep", [(2, slice(0, 9)), (4, slice(0, 5))])
@@ -236,10 +362,9 @@ def test_reduced_anisotropic_files_are_mirrored_like_mitsuba(files, reduction, k
         ref = mitsuba_eval(path, wi, wo)
     ours = brdftab.open(path)
     assert ours.reduction == reduction
-    rel, absolute = rel_errors(ours.eval_cos(wi, wo), ref, 1e-6)
-    assert rel.max() < 1e-4 and np.max(absolute, initial=0.0) < 1e-6, rel.max()
+    assert_reader_is_mitsuba(ours.eval_cos(wi, wo), ref)
     rel, _ = rel_errors(ref, model.eval(wi, wo) * wo[:, 2:3], 1e-4)
-    assert np.median(rel) < 0.02, np.median(rel)
+    assert_percentiles(f"reduction {reduction}, Mitsuba vs model", rel, {50: 0.01})
 
 
 class Chiral(BRDF):
@@ -278,23 +403,22 @@ def test_relative_azimuth_convention_with_a_chiral_brdf(files):
         ref = mitsuba_eval(path, wi, wo)
     analytic = np.repeat(model.eval(wi, wo) * wo[:, 2:3], 3, axis=1)  # grey: written as R = G = B
     rel, _ = rel_errors(ref, analytic, 1e-4)
-    assert np.median(rel) < 0.01, np.median(rel)  # measured 0.7 %
+    assert_percentiles("chiral, Mitsuba vs model", rel, {50: 0.01})
     mirrored = np.repeat(model.eval(wi * [1, -1, 1], wo * [1, -1, 1]) * wo[:, 2:3], 3, axis=1)
     assert np.median(rel_errors(ref, mirrored, 1e-4)[0]) > 0.05
-    rel, _ = rel_errors(brdftab.open(path).eval_cos(wi, wo), ref, 1e-6)
-    assert rel.max() < 1e-4, rel.max()
+    assert_reader_is_mitsuba(brdftab.open(path).eval_cos(wi, wo), ref)
 
 
 def test_exact_at_the_stored_nodes(rgb_file):
     """At the nodes the reader returns the model's f, whatever D is: the stored values divide by
     the interpolants the reader multiplies by, and invert(sample(node)) is the node."""
     ours = brdftab.open(rgb_file)
-    wi, wo, *_ = rgl._node_geometry(ours._vndf, ours.theta_i.astype(float), ours.phi_i.astype(float),
+    wi, wo, *_ = rgl.node_geometry(ours._vndf, ours.theta_i.astype(float), ours.phi_i.astype(float),
                                     ours.resolution, True)
     ok = wo[:, 2] > 1e-3
     ref = recipe_model().eval(wi[ok], wo[ok])
-    # measured: 2.5e-5 at edge nodes (the warp clamps the unit square to [2^-24, 1 - 2^-24]), 8.6e-6
-    # inside (float32 tables; the default θi nodes reach 89°)
+    # formats/rgl-bsdf.md, Guarantees, "Exact at the nodes". Measured: 2.6e-5 at edge nodes (the warp
+    # clamps the unit square to [2^-24, 1 - 2^-24]), 4e-6 inside (float32 tables)
     np.testing.assert_allclose(ours.values.reshape(-1, 3)[ok], ref, rtol=1e-4)
     inside = np.zeros(ours.values.shape[:4], bool)
     inside[:, :, 1:-1, 1:-1] = True
@@ -313,32 +437,44 @@ def test_lambert_without_ndf_uses_backscattering(files):
     with mi.variant_context("scalar_rgb"):
         ref = mitsuba_eval(path, wi, wo)
     rel, _ = rel_errors(ref, model.eval(wi, wo) * wo[:, 2:3], 1e-4)
-    assert np.median(rel) < 0.02, f"median {np.median(rel):.3%}"  # measured 0.8 %
+    # formats/rgl-bsdf.md, Guarantees, table row "Lambert"
+    assert_percentiles("Lambert, Mitsuba vs model", rel, {50: 0.01, 75: 0.02, 90: 0.06, 95: 0.13})
 
 
 # ---------------------------------------------------------------------------------------------
 # the NDF and sigma tables
 
 
-def test_ndf_and_sigma_tables_are_the_models():
-    """ndf = the model's D at the nodes (x = u(θ) fastest, y = u(φ)); sigma = cosθ (1 + Λ)."""
-    for kw, ax, ay in (({"alpha": 0.3}, 0.3, 0.3), ({"alpha_x": 0.15, "alpha_y": 0.4}, 0.15, 0.4)):
-        model = create("microfacet", **kw)
-        fields = rgl.prepare_rgl(model, n_theta_i=2, resolution=4, vndf_resolution=8, n_phi_i=5).fields
-        ny, nx = fields["ndf"].shape
-        u = np.linspace(0, 1, nx)
-        v = np.linspace(0, 1, ny)
-        theta = (u * u * np.pi / 2)[None, :]
-        phi = ((2 * v - 1) * np.pi)[:, None]
-        w = np.stack(np.broadcast_arrays(np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)),
-                     axis=-1)
-        d = d_ggx(w, ax, ay)
-        keep = d > rgl.NDF_FLOOR * d.max()
-        np.testing.assert_allclose(fields["ndf"][keep], d[keep], rtol=1e-6)
-        sigma = w[..., 2] * (1.0 + lambda_ggx(w, ax, ay))
-        grazing = np.isclose(theta, np.pi / 2) & np.ones_like(phi, bool)
-        sigma = np.where(grazing, 0.5 * np.sqrt((ax * np.cos(phi)) ** 2 + (ay * np.sin(phi)) ** 2), sigma)
-        np.testing.assert_allclose(fields["sigma"], sigma, rtol=2e-4)
+#: formats/rgl-bsdf.md, "How brdftab writes a file", 2: the sigma table against the Smith
+#: closed form cosθ (1 + Λ), largest relative difference per GGX roughness.
+SIGMA_BOUNDS = {(0.3, 0.3): 1e-6, (0.15, 0.4): 1e-4, (0.05, 0.05): 1e-6, (0.05, 0.3): 5e-4}
+
+
+@pytest.mark.parametrize("ax, ay", list(SIGMA_BOUNDS))
+def test_ndf_and_sigma_tables_are_the_models(ax, ay):
+    """ndf = the model's D at the nodes (x = u(θ) fastest, y = u(φ)) where D exceeds the floor;
+    sigma = cosθ (1 + Λ), the projected area of the model's own (unfloored) D."""
+    model = create("microfacet", alpha_x=ax, alpha_y=ay)
+    fields = rgl.prepare_rgl(model, n_theta_i=2, resolution=4, vndf_resolution=8,
+                             **({"n_phi_i": 5} if ax != ay else {})).fields
+    ny, nx = fields["ndf"].shape
+    assert (ny, nx) == ((256 if ax != ay else 2), 128)
+    u = np.linspace(0, 1, nx)
+    v = np.linspace(0, 1, ny)
+    theta = (u * u * np.pi / 2)[None, :]
+    phi = ((2 * v - 1) * np.pi)[:, None] if ax != ay else np.zeros((ny, 1))
+    w = np.stack(np.broadcast_arrays(np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)),
+                 axis=-1)
+    d = d_ggx(w, ax, ay)
+    keep = d > rgl.NDF_FLOOR * d.max()
+    np.testing.assert_allclose(fields["ndf"][keep], d[keep], rtol=1e-6)
+    np.testing.assert_allclose(fields["ndf"][~keep], np.float32(rgl.NDF_FLOOR * d.max()), rtol=1e-6)
+    sigma = w[..., 2] * (1.0 + lambda_ggx(w, ax, ay))
+    grazing = np.isclose(theta, np.pi / 2) & np.ones_like(phi, bool)
+    sigma = np.where(grazing, 0.5 * np.sqrt((ax * np.cos(phi)) ** 2 + (ay * np.sin(phi)) ** 2), sigma)
+    rel = np.abs(fields["sigma"] / sigma - 1)
+    print(f"sigma vs cos(1 + Lambda), alpha {ax}/{ay}: max {rel.max():.2g}")
+    assert rel.max() < SIGMA_BOUNDS[ax, ay], rel.max()
 
 
 def test_sum_uses_the_narrowest_microfacet_lobe():
@@ -350,6 +486,32 @@ def test_sum_uses_the_narrowest_microfacet_lobe():
     assert rgl.model_ndf(create("lambert", albedo=0.5)) is None
     scaled = create("scale", factor=0.5, term=narrow)
     np.testing.assert_allclose(rgl.model_ndf(scaled)(h), d_ggx(h, 0.1), rtol=1e-12)
+
+
+def test_backscatter_bound_for_a_lambertian_under_a_narrow_lobe(monkeypatch):
+    """formats/rgl-bsdf.md, writer step 1: a sum's ndf table is the narrowest lobe's D, raised
+    where the back-scattering needs more. For a Lambertian under a Beckmann α = 0.1 lobe the
+    file's albedo (as Mitsuba evaluates it) is then within 1.5 % of the model's at θi <= 70°;
+    without the bound the tails of D make it more than 10 % off."""
+    from brdftab.formats import _rgl_ndf
+
+    model = create("sum", terms=[create("lambert", albedo=[0.5, 0.5, 0.5]),
+                                 create("microfacet", distribution="beckmann", alpha=0.1, fresnel="schlick",
+                                        f0=[0.5, 0.5, 0.5])])
+    wis = rgl.sph(np.radians([0.0, 10.0, 25.0, 45.0, 70.0]), 0.0)
+    ref = np.array([directional_albedo(model, wi, lobe_width=0.1, n_theta=128, n_phi=128)[1] for wi in wis])
+
+    def albedo_error():
+        bsdf = rgl.RGLBSDF(rgl.prepare_rgl(model).fields)
+        return np.array([file_albedo(bsdf, wi, n=150)[1] for wi in wis]) / ref - 1
+
+    bounded = albedo_error()
+    monkeypatch.setattr(_rgl_ndf, "BACKSCATTER_BOUND", 0.0)
+    unbounded = albedo_error()
+    print(f"Lambert + Beckmann 0.1, albedo error with the bound {np.array2string(100 * bounded, precision=2)} %, "
+          f"without {np.array2string(100 * unbounded, precision=3)} %")
+    assert np.all(np.abs(bounded) < 0.015), bounded
+    assert np.max(np.abs(unbounded)) > 0.1, unbounded
 
 
 class MinG1GGX(BRDF):
@@ -486,7 +648,7 @@ def test_copy_is_exact_and_conversion_tabulates_the_reader(files, rgb_file):
     analytic = recipe_model().eval(wi, wo)
     ok = (wi[:, 2] > 0.1) & (wo[:, 2] > 0.1)
     rel, _ = rel_errors(back.values.reshape(-1, 3)[ok], analytic[ok], 1e-4)
-    assert np.median(rel) < 0.01, np.median(rel)
+    assert_percentiles(".bsdf -> netCDF vs model", rel, {50: 0.01})
     assert json.loads(back.ds.attrs["parameters"])["source_model"]["model"] == "sum"
 
 
@@ -511,7 +673,7 @@ def test_bsdf_to_merl(files, rgb_file):
     model = recipe_model()
     wi, wo = direction_pairs(8, 0.3, 0.3, n=300)
     rel, _ = rel_errors(merl.eval(wi, wo), model.eval(wi, wo), 1e-4)
-    assert np.median(rel) < 0.01, np.median(rel)  # measured 0.4 %
+    assert_percentiles(".bsdf -> MERL vs model", rel, {50: 0.01})
 
 
 def test_info_describes_the_file(rgb_file):
@@ -728,28 +890,37 @@ def test_fuzz_through_the_registry(files, small_fields):
 # -- f near the horizon, measured files -------------------------------------------------------
 
 def test_f_is_held_near_the_horizon(files):
-    """The quotient (f·cosθo)/cosθo grows without bound at grazing ωo; the reader holds f
-    beyond θ_hold = 90° − 180°/resolution, so a Lambertian's file reads within 10 % of its f at
-    every θo (measured: 9 % at θi = 60°, the file's own error at θ_hold)."""
+    """The quotient (f·cosθo)/cosθo grows without bound at grazing ωo; the reader holds f beyond
+    θ_hold = 90° − 180°/resolution (formats/rgl-bsdf.md, Guarantees, "f near the horizon"): a
+    Lambertian's file then reads within 25 % of its f at every θo, θi <= 80° and azimuth
+    (the file's own error at θ_hold), where the quotient is about 1.9× too large at 89° and
+    15× at 89.9° (medians)."""
     path = files / "lambert-hold.bsdf"
     brdftab.save(create("lambert", albedo=0.99), path)
     ours = brdftab.open(path)
     assert np.degrees(ours.theta_hold) == pytest.approx(90 - 180 / 32)
-    for ti in (0.0, 30.0, 60.0):
+    f0 = 0.99 / np.pi
+    th = np.radians(np.array([85.0, 88.0, 89.0, 89.5, 89.9, 89.99]))
+    held, quotient = [], []
+    for ti in np.arange(0.0, 81.0, 10.0):
         wi = rgl.sph(np.radians(ti), 0.3)
-        th = np.radians(np.array([85.0, 88.0, 89.0, 89.5, 89.9, 89.99]))
-        for dphi in (0.0, np.pi / 2, np.pi):
+        for dphi in np.radians(np.arange(0.0, 181.0, 45.0)):
             wo = rgl.sph(th, 0.3 + dphi)
-            f = ours.eval(wi, wo)[:, 1] / (0.99 / np.pi)
-            assert np.all(np.abs(f - 1) < 0.1), (ti, dphi, f)
-            quotient = ours.eval_cos(wi, wo)[:, 1] / wo[:, 2] / (0.99 / np.pi)
-            assert quotient[-1] > 2.0     # without the hold: the blow-up the hold removes
+            wi_ = np.broadcast_to(wi, wo.shape)
+            held.append(ours.eval(wi_, wo)[:, 1] / f0)
+            quotient.append(ours.eval_cos(wi_, wo)[:, 1] / wo[:, 2] / f0)
+    held, quotient = np.array(held), np.median(quotient, axis=0)
+    print(f"held f / (rho/pi): [{held.min():.3f}, {held.max():.3f}]; quotient (median) at 89°, 89.9°: "
+          f"{quotient[2]:.2f}, {quotient[4]:.2f}")
+    assert np.all(np.abs(held - 1) < 0.25), (held.min(), held.max())
+    assert 1.5 < quotient[2] < 2.5 and 10 < quotient[4] < 20, quotient  # the blow-up the hold removes
 
 
 @pytest.mark.parametrize("theta_i", [30.0, 70.0, 89.0])
 def test_albedo_of_a_file_matches_mitsubas_and_a_resolved_quadrature(files, theta_i):
     """brdftab's albedo of a file (held f) against Mitsuba's importance-sampled albedo of the
-    same file (f·cosθo, no hold) and against a fine product quadrature of brdftab's reader."""
+    same file (f·cosθo, no hold; within 1 %) and against a fine product quadrature of brdftab's
+    reader (within 0.5 %): formats/rgl-bsdf.md, Guarantees, "f near the horizon"."""
     from brdftab.integrate import directional_albedo as albedo
     from brdftab.quadrature import gauss_legendre
 
@@ -763,13 +934,16 @@ def test_albedo_of_a_file_matches_mitsubas_and_a_resolved_quadrature(files, thet
     got = albedo(ours, np.radians(theta_i), 0.0)
     with mi.variant_context("scalar_rgb"):
         mts = mitsuba_albedo(path, _f32(wi), n=48)
-    np.testing.assert_allclose(got, mts, rtol=0.02)
+    print(f"held albedo vs Mitsuba's, θi = {theta_i:g}°: {np.array2string(100 * (got / mts - 1), precision=2)} %")
+    np.testing.assert_allclose(got, mts, rtol=0.01)
     mu, wmu = gauss_legendre(300, 0.0, 1.0)
     ph = (np.arange(600) + 0.5) * 2 * np.pi / 600
     wo = rgl.sph(np.arccos(mu)[:, None], ph[None, :]).reshape(-1, 3)
     w = (wmu[:, None] * np.full(600, 2 * np.pi / 600)).ravel() * wo[:, 2]
     fine = ours.eval(np.broadcast_to(wi, wo.shape), wo).T @ w
-    np.testing.assert_allclose(got, fine, rtol=0.02)
+    print(f"held albedo vs a fine quadrature, θi = {theta_i:g}°: "
+          f"{np.array2string(100 * (got / fine - 1), precision=2)} %")
+    np.testing.assert_allclose(got, fine, rtol=0.005)
 
 
 def test_a_measured_file_declares_nothing_it_does_not_record(files):
@@ -787,12 +961,21 @@ def test_a_measured_file_declares_nothing_it_does_not_record(files):
 
 
 def test_lambert_file_albedo_up_to_grazing_incidence(files):
-    """formats/rgl-bsdf.md: a Lambertian's albedo from its file is within 1 % up to θi = 60° and
-    at most 5 % low at 85–89° (the default θi nodes reach 89°)."""
+    """formats/rgl-bsdf.md, Guarantees, "Grazing incidence": a Lambertian's albedo from its file,
+    by brdftab's reader (held f) and as Mitsuba evaluates the file (eval_cos), is within 0.6 %
+    up to θi = 80° and within 2 % at 85–89.5° (the default θi nodes reach 89°; beyond, Mitsuba
+    clamps to the last node)."""
     from brdftab.integrate import directional_albedo as albedo
 
     path = files / "lambert-albedo.bsdf"
     brdftab.save(create("lambert", albedo=0.99), path)
-    a = albedo(brdftab.open(path), np.radians([0.0, 30.0, 60.0, 85.0, 87.0, 89.0]))[:, 1] / 0.99
-    assert np.all(np.abs(a[:3] - 1) < 0.01), a
-    assert np.all((a[3:] > 0.95) & (a[3:] <= 1.0)), a
+    ours = brdftab.open(path)
+    ths = np.array([0.0, 10.0, 20.0, 30.0, 40.0, 50.0, 60.0, 70.0, 80.0, 85.0, 87.0, 89.0, 89.5])
+    held = albedo(ours, np.radians(ths))[:, 1] / 0.99 - 1
+    own = np.array([file_albedo(ours, rgl.sph(np.radians(t), 0.0), n=200)[1] for t in ths]) / 0.99 - 1
+    print(f"Lambert albedo error, held: {np.array2string(100 * held, precision=2)} %; "
+          f"eval_cos: {np.array2string(100 * own, precision=2)} %")
+    low = ths <= 80.0
+    for err in (held, own):
+        assert np.all(np.abs(err[low]) < 0.006), err
+        assert np.all(np.abs(err[~low]) < 0.02), err

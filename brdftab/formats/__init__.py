@@ -37,6 +37,7 @@ from .._locks import check_target
 from .._signals import held_signals
 from ..errors import BrdftabError, FormatError, ParameterError
 from ..params import suggest
+from ..registry import Registry
 
 __all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "write_prepared", "format_for",
            "target_grid", "prepare", "available", "naming"]
@@ -67,6 +68,11 @@ class FileFormat:
     options: dict = field(default_factory=dict)
     prepare: Callable | None = None
     check_options: Callable | None = None
+
+    @property
+    def summary(self) -> str:
+        """One line on the format (the attribute models, grids and checks call ``summary``)."""
+        return self.description
 
     def missing(self) -> list:
         """Names of the optional libraries this format needs that are not installed."""
@@ -104,12 +110,12 @@ class FileFormat:
 
 
 #: Registered formats by name.
-FORMATS: dict = {}
+FORMATS = Registry("format")
 
 
 def register(fmt: FileFormat) -> FileFormat:
-    FORMATS[fmt.name] = fmt
-    return fmt
+    """Add a format (each format module registers its own on import)."""
+    return FORMATS.register(fmt)
 
 
 def available() -> dict:
@@ -131,10 +137,7 @@ def format_for(path=None, format: str | None = None) -> FileFormat:
     if format is not None:
         if not isinstance(format, str):
             raise BrdftabError(f"format must be a name such as {', '.join(map(repr, sorted(FORMATS)))}, got {format!r}")
-        if format not in FORMATS:
-            raise BrdftabError(f"unknown format {format!r}{suggest(format, FORMATS)}; known formats: "
-                               f"{', '.join(sorted(FORMATS))}")
-        return FORMATS[format]
+        return FORMATS.get(format)
     suffix = "".join(Path(path).suffixes[-1:]).lower()
     for fmt in FORMATS.values():
         if suffix in fmt.extensions:

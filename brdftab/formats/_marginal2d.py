@@ -17,7 +17,9 @@ this module mirrors Mitsuba 3's ``Marginal2D<Float, Dimension, Continuous=true>`
   segment); ``invert`` is its exact inverse; ``eval`` is bilinear interpolation.
 
 Tables are kept in float32 as Mitsuba keeps them; arithmetic on them is in float64, so the
-results agree with Mitsuba's float32 arithmetic to ~1e-6 relative.
+results differ from Mitsuba's float32 arithmetic by rounding only: the RGL reader built on this
+module matches Mitsuba's ``measured`` eval to 5e-5 relative (measured ≤ 1.3e-5;
+``tests/test_rgl.py``, ``assert_reader_is_mitsuba``).
 """
 
 from __future__ import annotations

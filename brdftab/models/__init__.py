@@ -11,42 +11,17 @@ and is imported: the microfacet components D, G, F in :mod:`~brdftab.models.comp
 
 from __future__ import annotations
 
-from ..errors import BrdftabError
-from ..params import suggest
-from .bitterling import CookTorranceAlphaTheta
-from .combinators import Average, Rotated, Scale, Sum
-from .he_torrance import HeTorrance1991, ModifiedHeTorrance
-from .lambert import Lambert
-from .microfacet import Microfacet
-from .pyramid import PyramidMicrofacet
-from .small2021 import Small2021Diffraction, Small2021Peak, SolarCellSmall2021
-from .torrance_sparrow import TorranceSparrow1967
-from .zernike import ZernikeExpansion
+from . import (bitterling, combinators, he_torrance, lambert, microfacet, pyramid,  # noqa: F401 (register)
+               small2021, torrance_sparrow, zernike)
+from ._registry import MODELS, register
 
 __all__ = ["MODELS", "create", "register", "get"]
 
-#: Model classes by name.
-MODELS: dict = {}
-
-
-def register(cls):
-    """Add a model class to :data:`MODELS` under ``cls.name`` (usable as a decorator)."""
-    MODELS[cls.name] = cls
-    return cls
-
-
-for _cls in (Lambert, Microfacet, Sum, Scale, Average, Rotated, TorranceSparrow1967, Small2021Peak,
-             Small2021Diffraction, SolarCellSmall2021, ZernikeExpansion, CookTorranceAlphaTheta, HeTorrance1991,
-             ModifiedHeTorrance, PyramidMicrofacet):
-    register(_cls)
-
 
 def get(name: str):
-    """The model class called ``name``; an unknown name lists the valid ones."""
-    if not isinstance(name, str) or name not in MODELS:
-        hint = suggest(name, MODELS) if isinstance(name, str) else ""
-        raise BrdftabError(f"unknown model {name!r}{hint}; valid models: {', '.join(sorted(MODELS))}")
-    return MODELS[name]
+    """The model class called ``name`` (:class:`~brdftab.registry.UnknownName`, a
+    :class:`~brdftab.errors.ParameterError`, when there is none)."""
+    return MODELS.get(name)
 
 
 def create(name: str, **params):

@@ -32,6 +32,7 @@ from ..brdf import Model
 from ..params import Param
 from .distributions import d_beckmann, d_ggx, lambda_beckmann, lambda_ggx
 from .fresnel import fresnel_dielectric
+from ._registry import register
 
 __all__ = ["CookTorranceAlphaTheta", "alpha_of_theta"]
 
@@ -43,6 +44,7 @@ def alpha_of_theta(theta_i, p1, p2, p3, p4):
     return p1 * (1.0 - np.tanh(p2 * (np.asarray(theta_i, float) - p3))) + p4
 
 
+@register
 class CookTorranceAlphaTheta(Model):
     name = "cook-torrance-alpha-theta"
     summary = ("Cook–Torrance (GGX or Beckmann, separable Smith, dielectric Fresnel) with Bitterling's "

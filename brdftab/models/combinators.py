@@ -24,10 +24,12 @@ import numpy as np
 from ..brdf import Model
 from ..channels import combine_layouts
 from ..params import Param
+from ._registry import register
 
 __all__ = ["Sum", "Scale", "Average", "Rotated", "rotated_frame"]
 
 
+@register
 class Sum(Model):
     name = "sum"
     summary = "Sum of terms, f = Σ f_k."
@@ -75,6 +77,7 @@ class _OneTerm(Model):
         return self.term.lobe_axes
 
 
+@register
 class Scale(_OneTerm):
     name = "scale"
     summary = "A term multiplied by a per-channel or spectral factor, f = s · f_term."
@@ -103,6 +106,7 @@ class Scale(_OneTerm):
         return self.term._eval(wi, wo, lam, n) * np.asarray(self.factor.at(lam, n))[None, :]
 
 
+@register
 class Average(_OneTerm):
     name = "average"
     summary = "Mean of a term over rotations about the normal and/or over swapping wi and wo."
@@ -154,6 +158,7 @@ def rotated_frame(tilt: float, tilt_azimuth: float = 0.0, phi_ref: float = 0.0) 
     return ry @ rz
 
 
+@register
 class Rotated(_OneTerm):
     name = "rotated"
     summary = ("A term with its normal tilted by (tilt, tilt_azimuth) and the sample turned by phi_ref about the "

@@ -85,6 +85,7 @@ from ..errors import BrdftabError, ParameterError
 from ..params import Param
 from ..quadrature import gauss_legendre
 from .fresnel import fresnel_conductor
+from ._registry import register
 
 __all__ = ["HeTorrance1991", "ModifiedHeTorrance", "smith_shadow", "shadow_k", "effective_roughness",
            "htsg_series", "NEWTON_TOL", "SERIES_TOL", "G_MAX"]
@@ -418,6 +419,7 @@ def _unit_dirs(wi):
         return wi / norm
 
 
+@register
 class HeTorrance1991(_HTSGBase):
     """He–Torrance–Sillion–Greenberg 1991 (see the module docstring)."""
 
@@ -525,6 +527,7 @@ class HeTorrance1991(_HTSGBase):
         return out
 
 
+@register
 class ModifiedHeTorrance(_HTSGBase):
     """Bitterling et al.'s modified He–Torrance model (§4, Eqs. 22–24; see the module docstring)."""
 

@@ -12,10 +12,12 @@ import numpy as np
 
 from ..brdf import Model
 from ..params import Param
+from ._registry import register
 
 __all__ = ["Lambert"]
 
 
+@register
 class Lambert(Model):
     name = "lambert"
     summary = "Ideal diffuse reflector, f = albedo / π."

@@ -19,6 +19,7 @@ import numpy as np
 
 from ..brdf import Model
 from . import components as C
+from ._registry import register
 
 __all__ = ["Microfacet", "ComposedParams"]
 
@@ -55,6 +56,7 @@ def split_components(values: dict, kinds=("distribution", "shadowing", "fresnel"
     return out
 
 
+@register
 class Microfacet(Model):
     name = "microfacet"
     summary = "Cook–Torrance microfacet BRDF D·G·F/(4 cosθi cosθo) with Beckmann or GGX."

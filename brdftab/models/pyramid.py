@@ -135,6 +135,7 @@ from ..quadrature import gauss_legendre
 from . import components as C
 from .combinators import Sum
 from .distributions import d_beckmann
+from ._registry import register
 
 __all__ = ["THETA_P", "FACET_WEIGHT", "facet_normals", "visible_area", "PyramidDistribution", "PyramidShadowing",
            "PyramidMicrofacet", "Exits"]
@@ -885,6 +886,7 @@ def _params():
     )
 
 
+@register
 class PyramidMicrofacet(Model):
     name = "pyramid-microfacet"
     summary = ("Random upright pyramids (textured c-Si): pyramid microfacet term plus exit lobes of multiple "

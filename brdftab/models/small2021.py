@@ -51,6 +51,7 @@ from . import components as C
 from .combinators import Rotated, Sum
 from .lambert import Lambert
 from .rayleigh_rice import q_sum
+from ._registry import register
 
 __all__ = ["Small2021Peak", "Small2021Diffraction", "SolarCellSmall2021"]
 
@@ -66,6 +67,7 @@ def _peak_params(suffix="", m=REQUIRED, rho=REQUIRED, n=REQUIRED):
     )
 
 
+@register
 class Small2021Peak(Model):
     name = "small2021-peak"
     summary = "Small et al. 2021 Eq. 6: ρs Q/(2(cosθi + cosθs)²) · Beckmann D(m), Q the plain Rayleigh–Rice sum."
@@ -94,6 +96,7 @@ class Small2021Peak(Model):
         return np.asarray(self.rho_s.at(lam, n), float) * q * base[:, None]
 
 
+@register
 class Small2021Diffraction(Model):
     name = "small2021-diffraction"
     summary = ("Small et al. 2021 Eqs. 9–10: two-stripe Fraunhofer band ρs3 cos²·sinc²·exp(−x̄²/c²) in half-vector "
@@ -219,6 +222,7 @@ def _solar_params():
     )
 
 
+@register
 class SolarCellSmall2021(Model):
     name = "solar-cell-small2021"
     summary = ("Small et al. 2021 solar cell: center peak (Eq. 6) + offset peak in a tilted frame (Eqs. 7–8) + "

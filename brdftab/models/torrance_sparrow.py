@@ -48,6 +48,7 @@ from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from .microfacet import ComposedParams, split_components
+from ._registry import register
 
 __all__ = ["GaussianAngle", "TorranceSparrow1967", "projected_angles", "g_table1"]
 
@@ -199,6 +200,7 @@ def _ts_params():
     )
 
 
+@register
 class TorranceSparrow1967(Model):
     name = "torrance-sparrow-1967"
     summary = ("Torrance–Sparrow 1967: (ρd/π)[1 + g F G exp(−c²α²)/(cosθi cosθo)], V-groove G (Table I), "

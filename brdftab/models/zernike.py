@@ -80,6 +80,7 @@ from ..channels import Layout
 from ..errors import BrdftabWarning, ParameterError
 from ..geometry import as_directions
 from ..params import Kind, Param, register_kind
+from ._registry import register
 
 __all__ = ["ZernikeExpansion", "ZernikeCoefficients", "radial_zernike", "CoefficientFileKind"]
 
@@ -275,6 +276,7 @@ _SCAN_THETA = np.concatenate([np.arange(0.0, 89.0, 1.5), [89.0, 89.5, 89.9]])
 _SCAN_DPHI = np.linspace(0.0, 180.0, 25)
 
 
+@register
 class ZernikeExpansion(Model):
     """SCATMECH's ZernikeExpansion_BRDF_Model, f_r,11 (see the module docstring)."""
 

@@ -1,0 +1,132 @@
+"""The format options of RGL ``.bsdf`` files: names, defaults, validation, incident elevations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import ParameterError
+from ..params import suggest
+
+__all__ = ["DEFAULTS", "OPTIONS", "NDF_CHOICES", "MAX_RESOLUTION", "check_options", "theta_i_nodes"]
+
+#: Default resolutions (format options).
+DEFAULTS = {
+    "n_theta_i": 9,            # incident elevations over [0, theta_i_max_deg] (theta_i_nodes)
+    "theta_i_max_deg": 89.0,
+    "n_phi_i": 17,             # anisotropic files: incident azimuths over [-180°, 180°]
+    "resolution": 32,          # N × N stored samples per incident direction
+    "vndf_resolution": 64,     # VNDF table per incident direction
+    "ndf_resolution": 128,     # ndf / sigma along θ
+    "ndf_phi_resolution": 256,  # ndf / sigma along φ (anisotropic files; isotropic files use 2 rows)
+}
+MAX_RESOLUTION = 4096
+
+OPTIONS = {
+    "theta_i_deg": "incident elevations in degrees, ascending in [0, 90) (default: n_theta_i values)",
+    "n_theta_i": f"number of incident elevations from 0 to theta_i_max_deg, closer together towards grazing "
+                 f"(default {DEFAULTS['n_theta_i']})",
+    "theta_i_max_deg": f"largest incident elevation in degrees (default {DEFAULTS['theta_i_max_deg']:g})",
+    "n_phi_i": f"anisotropic files: incident azimuths over [-180, 180] degrees, >= 3 (default {DEFAULTS['n_phi_i']})",
+    "resolution": f"stored samples per incident direction, N x N (default {DEFAULTS['resolution']})",
+    "vndf_resolution": f"vndf (warp) table per incident direction, n x n (default {DEFAULTS['vndf_resolution']})",
+    "ndf_resolution": f"ndf and sigma tables along theta (default {DEFAULTS['ndf_resolution']})",
+    "ndf_phi_resolution": f"anisotropic files: ndf and sigma tables along phi (default "
+                          f"{DEFAULTS['ndf_phi_resolution']})",
+    "anisotropic": "true: phi_i over [-180, 180] degrees; false: phi_i = [0] (default: the model's isotropy)",
+    "ndf": "auto (the model's own D, else from back-scattering) | model | backscatter",
+    "wavelengths_nm": "spectral models: wavelengths of the 'spectra' field in nm (default: the model's own)",
+    "description": "text of the 'description' field (default: the model)",
+}
+NDF_CHOICES = ("auto", "model", "backscatter")
+
+
+def _int(key, value, lo, hi=MAX_RESOLUTION):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise ParameterError(key, f"expected a whole number, got {value!r}")
+    if not lo <= value <= hi:
+        raise ParameterError(key, f"expected a whole number in [{lo}, {hi}], got {value}")
+    return int(value)
+
+
+def _number(key, value):
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(value):
+        raise ParameterError(key, f"expected a number, got {value!r}")
+    return float(value)
+
+
+def _numbers(key, value):
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = [value]
+    if not isinstance(value, (list, tuple, np.ndarray)) or len(value) == 0:
+        raise ParameterError(key, f"expected a non-empty list of numbers, got {value!r}")
+    return np.array([_number(key, v) for v in value])
+
+
+def theta_i_nodes(n: int, top: float) -> np.ndarray:
+    """``n`` incident elevations [rad] from 0 to ``top``: θ_k = top·(1 − (1 − k/(n−1))^1.5),
+    closer together towards grazing, where the reflectance changes fastest with θi (for 9
+    nodes to 89°: 0, 16.2, 31.2, 45.0, 57.5, 68.6, 77.9, 85.1, 89.0°)."""
+    if n == 1:
+        return np.zeros(1)
+    return top * (1.0 - (1.0 - np.linspace(0.0, 1.0, n)) ** 1.5)
+
+
+def check_options(**options) -> dict:
+    """Validate the format options (names, types, ranges); returns them resolved (defaults filled in)."""
+    for key in options:
+        if key not in OPTIONS:
+            raise ParameterError(key, f"unknown option for format rgl{suggest(key, OPTIONS)}; "
+                                      f"valid: {', '.join(OPTIONS)}")
+    return _resolve_options(**options)
+
+
+def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_phi_i=None, resolution=None,
+                  vndf_resolution=None, ndf_resolution=None, ndf_phi_resolution=None, anisotropic=None, ndf="auto",
+                  wavelengths_nm=None, description=None):
+    out = {}
+    if theta_i_deg is not None:
+        if n_theta_i is not None or theta_i_max_deg is not None:
+            raise ParameterError("theta_i_deg", "give either theta_i_deg or n_theta_i / theta_i_max_deg, not both")
+        t = _numbers("theta_i_deg", theta_i_deg)
+        if np.any(t < 0) or np.any(t >= 90):
+            raise ParameterError("theta_i_deg", "incident elevations must lie in [0, 90) degrees")
+        if np.any(np.diff(t) <= 0):
+            raise ParameterError("theta_i_deg", "incident elevations must increase strictly")
+        if np.any(np.diff(np.radians(t).astype(np.float32)) <= 0):
+            raise ParameterError("theta_i_deg", "incident elevations are too close to tell apart in float32")
+        out["theta_i"] = np.radians(t)
+    else:
+        n = _int("n_theta_i", DEFAULTS["n_theta_i"] if n_theta_i is None else n_theta_i, 1, 1024)
+        top = DEFAULTS["theta_i_max_deg"] if theta_i_max_deg is None else _number("theta_i_max_deg", theta_i_max_deg)
+        if not 0 < top < 90:
+            raise ParameterError("theta_i_max_deg", f"expected a number in (0, 90) degrees, got {top:g}")
+        out["theta_i"] = theta_i_nodes(n, math.radians(top))
+    if anisotropic is not None and not isinstance(anisotropic, (bool, np.bool_)):
+        raise ParameterError("anisotropic", f"expected true or false, got {anisotropic!r}")
+    out["anisotropic"] = None if anisotropic is None else bool(anisotropic)
+    if n_phi_i is not None:
+        if anisotropic is False:
+            raise ParameterError("n_phi_i", "only used for anisotropic files (anisotropic is false)")
+        out["n_phi_i"] = _int("n_phi_i", n_phi_i, 3, 1024)
+    else:
+        out["n_phi_i"] = DEFAULTS["n_phi_i"]
+    for key, value in (("resolution", resolution), ("vndf_resolution", vndf_resolution),
+                       ("ndf_resolution", ndf_resolution), ("ndf_phi_resolution", ndf_phi_resolution)):
+        out[key] = DEFAULTS[key] if value is None else _int(key, value, 2)
+    if ndf not in NDF_CHOICES:
+        raise ParameterError("ndf", f"expected one of {', '.join(NDF_CHOICES)}, got {ndf!r}")
+    out["ndf"] = ndf
+    if wavelengths_nm is not None:
+        lam = _numbers("wavelengths_nm", wavelengths_nm)
+        if np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
+            raise ParameterError("wavelengths_nm", "expected positive wavelengths in nm, increasing strictly")
+        out["wavelengths"] = lam
+    else:
+        out["wavelengths"] = None
+    if description is not None and not isinstance(description, str):
+        raise ParameterError("description", f"expected a string, got {description!r}")
+    out["description"] = description
+    return out

@@ -1,0 +1,67 @@
+"""One registry helper for every kind of plug-in: names, lookup and one error wording."""
+
+import pytest
+from click.testing import CliRunner
+
+import brdftab
+from brdftab.checks import CHECKS, configure
+from brdftab.cli import main
+from brdftab.errors import ParameterError
+from brdftab.formats import FORMATS, format_for
+from brdftab.grids import GRIDS, grid_from_config
+from brdftab.models import MODELS, components
+from brdftab.registry import Registry, UnknownName
+
+WORDING = r"unknown {kind} '{bad}' \(did you mean '{good}'\?\); valid: "
+
+
+@pytest.mark.parametrize("lookup, kind, bad, good", [
+    (lambda n: brdftab.models.create(n), "model", "microfacte", "microfacet"),
+    (lambda n: components.get("distribution", n), "distribution", "gxg", "ggx"),
+    (lambda n: components.get("fresnel", n), "fresnel", "conductr", "conductor"),
+    (lambda n: grid_from_config({"type": n}), "grid type", "merll", "merl"),
+    (lambda n: format_for("x.nc", n), "format", "netcfd", "netcdf"),
+    (lambda n: configure({n: {"level": "warn"}}), "check", "energi", "energy"),
+])
+def test_every_registry_gives_the_same_wording(lookup, kind, bad, good):
+    with pytest.raises(ParameterError, match=WORDING.format(kind=kind, bad=bad, good=good)):
+        lookup(bad)
+
+
+@pytest.mark.parametrize("args, kind, bad, good", [
+    (["models", "microfacte"], "model", "microfacte", "microfacet"),
+    (["grids", "merll"], "grid type", "merll", "merl"),
+    (["formats", "netcfd"], "format", "netcfd", "netcdf"),
+    (["validate", "--level", "energi=warn", "x.nc"], "check", "energi", "energy"),
+])
+def test_the_cli_says_it_in_one_line_with_exit_2(args, kind, bad, good):
+    import re
+
+    r = CliRunner().invoke(main, args)
+    assert r.exit_code == 2
+    assert re.search(WORDING.format(kind=kind, bad=bad, good=good), r.output), r.output
+
+
+def test_registries_are_registries_and_members_register_themselves():
+    for reg, kind in ((MODELS, "model"), (GRIDS, "grid type"), (FORMATS, "format"), (CHECKS, "check"),
+                      (components.COMPONENTS["shadowing"], "shadowing")):
+        assert isinstance(reg, Registry) and reg.kind == kind and reg.names() == list(reg)
+    # summaries under one name for every kind
+    for reg in (MODELS, GRIDS, FORMATS, CHECKS):
+        assert all(isinstance(m.summary, str) and m.summary for m in reg.values())
+    # a model module registers its own classes (no central list)
+    from brdftab.models import small2021
+
+    assert MODELS["solar-cell-small2021"] is small2021.SolarCellSmall2021
+
+
+def test_a_new_registry_member_and_a_missing_one():
+    shapes = Registry("shape")
+
+    @shapes.register
+    class Disk:
+        name = "disk"
+
+    assert shapes.get("disk") is Disk and shapes.get("square", None) is None
+    with pytest.raises(UnknownName, match="unknown shape 'dsik' \\(did you mean 'disk'\\?\\); valid: disk"):
+        shapes.get("dsik")
