@@ -16,14 +16,33 @@ Script API::
 
 from __future__ import annotations
 
-from . import geometry, grids, models
+import importlib
+
 from ._version import __version__
-from .brdf import BRDF
-from .errors import BrdftabError
-from .table import Table, tabulate
 
 __all__ = ["__version__", "BRDF", "BrdftabError", "Table", "from_spec", "geometry", "grids", "load_spec", "models",
            "open", "save", "tabulate"]
+
+#: Names imported on first use (PEP 562): ``import brdftab`` stays light, so the command line
+#: installs its signal handlers before numpy, xarray and netCDF4 load.
+_LAZY = {"BRDF": ".brdf", "BrdftabError": ".errors", "Table": ".table", "tabulate": ".table"}
+
+
+def __getattr__(name):
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name], __name__), name)
+    if name.startswith("__"):
+        raise AttributeError(name)
+    try:
+        return importlib.import_module(f".{name}", __name__)
+    except ModuleNotFoundError as exc:
+        if exc.name != f"{__name__}.{name}":
+            raise
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}") from None
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))
 
 
 def load_spec(path):
@@ -33,7 +52,7 @@ def load_spec(path):
     return _load(path)
 
 
-def from_spec(path) -> BRDF:
+def from_spec(path):
     """The BRDF a spec file describes (its ``[model]``).
 
     >>> import pathlib, tempfile, brdftab
@@ -46,7 +65,7 @@ def from_spec(path) -> BRDF:
     return load_spec(path).model
 
 
-def open(path) -> Table:  # noqa: A001 - mirrors xarray.open_dataset / io.open naming
+def open(path):  # noqa: A001 - mirrors xarray.open_dataset / io.open naming
     """Read a table from any supported file (format from magic bytes, then extension).
 
     >>> import pathlib, tempfile, brdftab
@@ -63,7 +82,7 @@ def open(path) -> Table:  # noqa: A001 - mirrors xarray.open_dataset / io.open n
     return formats.read(path)
 
 
-def save(brdf: BRDF, path, grid=None, *, format=None, overwrite=False, **options):
+def save(brdf, path, grid=None, *, format=None, overwrite=False, **options):
     """Write ``brdf`` to ``path`` (format from ``format`` or the extension), atomically.
 
     A table is written as it is when ``grid`` is None or equals its own grid; otherwise the

@@ -508,7 +508,7 @@ def _parameter_lines(model, parameters, indent: int) -> list:
             return [f"{' ' * indent}parameters: {_one_line(parameters)}"]
     if not isinstance(parameters, dict):
         return [f"{' ' * indent}parameters: {_one_line(parameters)}"]
-    cls = registry.MODELS.get(model) if isinstance(model, str) else None
+    cls = registry.MODELS.get(model, None) if isinstance(model, str) else None
     declared = {p.name: p for p in getattr(cls, "params", ())}
     pad = " " * indent
     lines = []
@@ -627,7 +627,9 @@ def _format_rows():
             stores = "a grid chosen per file"
         rows.append({"name": name, "extensions": list(f.extensions), "description": f.description,
                      "read": f.read is not None, "write": f.write is not None, "stores": stores,
-                     "requires": list(f.requires), "available": f.available, "options": dict(f.options)})
+                     "requires": list(f.requires), "available": f.available,
+                     "options": {p.name: {"expected": p.expected(), "default": p.to_json(p.default), "doc": p.doc}
+                                 for p in f.params}})
     return rows
 
 
@@ -661,8 +663,10 @@ def formats_(name, as_json):
     click.echo(f"  extensions: {', '.join(r['extensions'])}; stores {r['stores']}")
     click.echo("options (-o KEY=VALUE with convert, KEY = VALUE in an [[output]] table):" if r["options"]
                else "options: none")
-    for key, doc in r["options"].items():
-        click.echo(f"  {key}: {doc}")
+    for key, o in r["options"].items():
+        default = "" if o["default"] is None else f"; default {_toml_value(o['default'])}"
+        click.echo(f"  {key}: {o['expected']}{default}")
+        click.echo(f"      {o['doc']}")
 
 
 main.add_command(validate)

@@ -155,7 +155,44 @@ class BoolKind(Kind):
         return bool(value)
 
 
-for _k in (FloatKind(), IntKind(), ChannelKind(), ChoiceKind(), BoolKind()):
+class FloatsKind(Kind):
+    """A number or a non-empty list of finite numbers (stored as a tuple)."""
+
+    name = "floats"
+
+    def expected(self, p):
+        rng = p.range_text()
+        return f"a number or a list of numbers{' ' + rng if rng else ''}"
+
+    def convert(self, p, value):
+        vals = value if isinstance(value, (list, tuple)) else [value]
+        if not vals or any(isinstance(v, bool) or not isinstance(v, (int, float, np.number)) for v in vals):
+            raise ParameterError(p.name, f"expected {self.expected(p)}, got {_show(value)}")
+        arr = np.asarray(vals, float)
+        if not np.all(np.isfinite(arr)) or not p.in_range(arr):
+            rng = p.range_text()
+            raise ParameterError(p.name, f"expected finite numbers{' ' + rng if rng else ''}, got {_show(value)}")
+        return tuple(float(v) for v in arr)
+
+    def to_json(self, value):
+        return list(value)
+
+
+class TextKind(Kind):
+    """A string."""
+
+    name = "text"
+
+    def expected(self, p):
+        return "a string"
+
+    def convert(self, p, value):
+        if not isinstance(value, str):
+            raise _bad(p, value)
+        return value
+
+
+for _k in (FloatKind(), IntKind(), ChannelKind(), ChoiceKind(), BoolKind(), FloatsKind(), TextKind()):
     register_kind(_k)
 
 
@@ -235,7 +272,7 @@ class Param:
         return None if value is None else self.kind_object.to_json(value)
 
 
-def parse_params(declared, given: dict, model: str, fill: bool = True) -> dict:
+def parse_params(declared, given: dict, model: str, fill: bool = True, noun: str = "parameter") -> dict:
     """Validate keyword arguments against declarations; fill defaults (unless ``fill`` is false).
 
     Unknown names and missing required parameters raise :class:`ParameterError` naming the
@@ -246,7 +283,7 @@ def parse_params(declared, given: dict, model: str, fill: bool = True) -> dict:
     for key, value in given.items():
         if key not in by_name:
             raise ParameterError(
-                key, f"unknown parameter for {_owner(model)}{suggest(key, by_name)}; valid: {', '.join(by_name)}"
+                key, f"unknown {noun} for {_owner(model)}{suggest(key, by_name)}; valid: {', '.join(by_name) or 'none'}"
             )
         out[key] = by_name[key].convert(value)
     if not fill:

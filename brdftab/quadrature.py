@@ -5,8 +5,9 @@
 * :func:`half_vector_hemisphere` — nodes in half-vector space with θh mapped through
   ``tanθh = c·s/(1 − s)``, s Gauss–Legendre on (0, 1), so nodes follow a lobe of width c
   (use c ≈ α for microfacet lobes); exact to ~1e-8 for ∫D cosθh dω even at α = 0.05.
-* :func:`directional_albedo` — ∫ f(wi, wo) cosθo dωo for given wi, by either rule; in
-  half-vector space the change of variables is dωo = 4 (wo·h) dωh.
+
+The directional albedo itself has one public function, :func:`brdftab.integrate.directional_albedo`
+(adaptive, following lobe hints); these fixed rules are building blocks and test references.
 
 References: P. J. Davis, P. Rabinowitz, *Methods of Numerical Integration*, 2nd ed. (1984),
 §2.7 (Gauss–Legendre), §2.9 (periodic trapezoid rule); B. Walter et al., EGSR (2007), Eq. 14
@@ -22,7 +23,7 @@ from scipy.special import roots_legendre
 
 from .geometry import sph_to_vec
 
-__all__ = ["gauss_legendre", "hemisphere", "half_vector_hemisphere", "directional_albedo"]
+__all__ = ["gauss_legendre", "hemisphere", "half_vector_hemisphere"]
 
 
 def gauss_legendre(n: int, a: float = -1.0, b: float = 1.0):
@@ -58,31 +59,3 @@ def half_vector_hemisphere(scale: float, n_theta: int = 256, n_phi: int = 256):
     th, ph = np.meshgrid(theta, phi, indexing="ij")
     w = np.repeat(ws * dtheta * np.sin(theta), n_phi) * (2 * np.pi / n_phi)
     return sph_to_vec(th.ravel(), ph.ravel()), w
-
-
-def directional_albedo(brdf, wi, wavelengths=None, *, lobe_width: float | None = None, n_theta: int = 128,
-                       n_phi: int = 128):
-    """Directional-hemispherical reflectance ∫ f(wi, wo) cosθo dωo for each ``wi[..., 3]``.
-
-    ``lobe_width`` None uses :func:`hemisphere`; a number uses :func:`half_vector_hemisphere`
-    with that scale (for peaked lobes). Returns ``[..., n_channels]``.
-    """
-    wi = np.asarray(wi, float)
-    lead = wi.shape[:-1]
-    wi2 = wi.reshape(-1, 3)
-    out = []
-    if lobe_width is None:
-        wo, w = hemisphere(n_theta, n_phi)
-        for v in wi2:
-            f = brdf.eval(v[None, :], wo, wavelengths)
-            out.append(np.einsum("nc,n->c", f, w * wo[:, 2]))
-    else:
-        h, wh = half_vector_hemisphere(lobe_width, n_theta, n_phi)
-        for v in wi2:
-            c = h @ v
-            keep = c > 0
-            hk, ck = h[keep], c[keep]
-            wo = 2.0 * ck[:, None] * hk - v
-            f = brdf.eval(v[None, :], wo, wavelengths)
-            out.append(np.einsum("nc,n->c", f, wh[keep] * 4.0 * ck * np.maximum(wo[:, 2], 0.0)))
-    return np.asarray(out).reshape(lead + (-1,))

@@ -10,7 +10,8 @@ from brdftab.models.distributions import d_beckmann, d_ggx, lambda_beckmann, lam
 from brdftab.models.fresnel import (fresnel_amplitudes, fresnel_complex, fresnel_conductor, fresnel_dielectric,
                                     fresnel_schlick)
 from brdftab.models import components
-from brdftab.quadrature import directional_albedo, half_vector_hemisphere
+from _quadrature import fixed_albedo as directional_albedo
+from brdftab.quadrature import half_vector_hemisphere
 
 ALPHAS = [0.05, 0.3, 1.0]
 

@@ -40,7 +40,7 @@ from brdftab.errors import BrdftabError, FormatError, ParameterError
 from brdftab.formats import rgl
 from brdftab.formats._tensor import encode_tensor, parse_tensor
 from brdftab.models.distributions import d_ggx, lambda_ggx
-from brdftab.quadrature import directional_albedo
+from _quadrature import fixed_albedo as directional_albedo
 
 # Both variants must exist: fail loudly at import otherwise.
 for _variant in ("scalar_rgb", "scalar_spectral"):

@@ -23,36 +23,13 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..integrate import DEFAULT_NODES, albedo_curve, directional_albedo
-from ..params import Kind, Param, register_kind
+from ..params import Param
 from . import Check, register
 from ._reference import reference
 
 __all__ = ["Energy", "Albedo", "sweep", "curve"]
 
 
-class _FloatsKind(Kind):
-    """A number or a non-empty list of finite numbers (stored as a tuple)."""
-
-    name = "floats"
-
-    def expected(self, p):
-        return "a number or a list of numbers"
-
-    def convert(self, p, value):
-        vals = value if isinstance(value, (list, tuple)) else [value]
-        if not vals or any(isinstance(v, bool) or not isinstance(v, (int, float, np.number)) for v in vals):
-            raise ParameterError(p.name, f"expected {self.expected(p)}, got {value!r}")
-        arr = np.asarray(vals, float)
-        if not np.all(np.isfinite(arr)) or not p.in_range(arr):
-            rng = p.range_text()
-            raise ParameterError(p.name, f"expected finite numbers{' ' + rng if rng else ''}, got {value!r}")
-        return tuple(float(v) for v in arr)
-
-    def to_json(self, value):
-        return list(value)
-
-
-register_kind(_FloatsKind())
 
 _SWEEP = (
     Param("theta_i_max", "float", "Largest incidence angle of the sweep.", units="rad", default=float(np.radians(89.0)),

@@ -36,7 +36,7 @@ from .._atomic import atomic_path
 from .._locks import check_target
 from .._signals import held_signals
 from ..errors import BrdftabError, FormatError, ParameterError
-from ..params import suggest
+from ..params import parse_params, suggest
 from ..registry import Registry
 
 __all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "write_prepared", "format_for",
@@ -65,9 +65,22 @@ class FileFormat:
     sniff: Callable | None = None
     requires: tuple = ()
     native_grid: Callable | None = None
-    options: dict = field(default_factory=dict)
+    #: The format options, declared like model parameters (:class:`~brdftab.params.Param`):
+    #: ``-o KEY=VALUE`` of convert and the keys of an ``[[output]]`` table are checked, typed
+    #: and did-you-mean'd against them in one place (:meth:`validate_options`), and
+    #: ``brdftab formats NAME`` lists them.
+    params: tuple = ()
     prepare: Callable | None = None
+    #: Rules between options that single declarations cannot say (one excludes another).
     check_options: Callable | None = None
+    #: Stated precision: the largest relative difference between what the writer wrote (the
+    #: table, or its own sampling) and what the reader returns (the format contract tests it).
+    precision: float = 0.0
+
+    @property
+    def options(self) -> dict:
+        """``{name: description}`` of the declared options."""
+        return {p.name: p.doc for p in self.params}
 
     @property
     def summary(self) -> str:
@@ -88,14 +101,14 @@ class FileFormat:
             raise BrdftabError(f"format {self.name} needs the Python package {', '.join(miss)}, which is not "
                                f"installed (pip install {' '.join(miss)})")
 
-    def validate_options(self, options: dict) -> None:
-        """Raise :class:`~brdftab.errors.ParameterError` naming a bad option or value."""
-        for key in options:
-            if key not in self.options:
-                raise ParameterError(key, f"unknown option for format {self.name}{suggest(key, self.options)}; "
-                                     f"valid: {', '.join(self.options) or 'none'}")
+    def validate_options(self, options: dict) -> dict:
+        """The options checked against the declarations (unknown names with did-you-mean,
+        types, ranges, choices) and then the format's cross-option rules; returns them typed.
+        Raises :class:`~brdftab.errors.ParameterError` naming the bad option."""
+        typed = parse_params(self.params, dict(options), f"format {self.name}", fill=False, noun="option")
         if self.check_options is not None:
             self.check_options(**options)
+        return typed
 
     def opens(self, head: bytes, size: int) -> bool:
         """True when the content (first bytes, file size) is this format's."""

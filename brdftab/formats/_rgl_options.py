@@ -7,9 +7,9 @@ import math
 import numpy as np
 
 from ..errors import ParameterError
-from ..params import suggest
+from ..params import Param, suggest
 
-__all__ = ["DEFAULTS", "OPTIONS", "NDF_CHOICES", "MAX_RESOLUTION", "check_options", "theta_i_nodes"]
+__all__ = ["DEFAULTS", "OPTIONS", "PARAMS", "NDF_CHOICES", "MAX_RESOLUTION", "check_options", "theta_i_nodes"]
 
 #: Default resolutions (format options).
 DEFAULTS = {
@@ -23,23 +23,39 @@ DEFAULTS = {
 }
 MAX_RESOLUTION = 4096
 
-OPTIONS = {
-    "theta_i_deg": "incident elevations in degrees, ascending in [0, 90) (default: n_theta_i values)",
-    "n_theta_i": f"number of incident elevations from 0 to theta_i_max_deg, closer together towards grazing "
-                 f"(default {DEFAULTS['n_theta_i']})",
-    "theta_i_max_deg": f"largest incident elevation in degrees (default {DEFAULTS['theta_i_max_deg']:g})",
-    "n_phi_i": f"anisotropic files: incident azimuths over [-180, 180] degrees, >= 3 (default {DEFAULTS['n_phi_i']})",
-    "resolution": f"stored samples per incident direction, N x N (default {DEFAULTS['resolution']})",
-    "vndf_resolution": f"vndf (warp) table per incident direction, n x n (default {DEFAULTS['vndf_resolution']})",
-    "ndf_resolution": f"ndf and sigma tables along theta (default {DEFAULTS['ndf_resolution']})",
-    "ndf_phi_resolution": f"anisotropic files: ndf and sigma tables along phi (default "
-                          f"{DEFAULTS['ndf_phi_resolution']})",
-    "anisotropic": "true: phi_i over [-180, 180] degrees; false: phi_i = [0] (default: the model's isotropy)",
-    "ndf": "auto (the model's own D, else from back-scattering) | model | backscatter",
-    "wavelengths_nm": "spectral models: wavelengths of the 'spectra' field in nm (default: the model's own)",
-    "description": "text of the 'description' field (default: the model)",
-}
 NDF_CHOICES = ("auto", "model", "backscatter")
+
+#: The format options, declared once: names, kinds, ranges and documentation (``brdftab formats
+#: rgl``); :func:`check_options` adds the rules between them and fills in the defaults.
+PARAMS = (
+    Param("theta_i_deg", "floats", "Incident elevations in degrees, ascending in [0, 90) (default: n_theta_i "
+          "values).", units="deg", default=None, minimum=0.0, maximum=90.0),
+    Param("n_theta_i", "int", "Number of incident elevations from 0 to theta_i_max_deg, closer together towards "
+          f"grazing (default {DEFAULTS['n_theta_i']}).", default=None, minimum=1, maximum=1024),
+    Param("theta_i_max_deg", "float", f"Largest incident elevation in degrees (default "
+          f"{DEFAULTS['theta_i_max_deg']:g}).", units="deg", default=None, minimum=0.0, maximum=90.0,
+          exclusive_minimum=True),
+    Param("n_phi_i", "int", f"Anisotropic files: incident azimuths over [-180, 180] degrees (default "
+          f"{DEFAULTS['n_phi_i']}).", default=None, minimum=3, maximum=1024),
+    Param("resolution", "int", f"Stored samples per incident direction, N x N (default {DEFAULTS['resolution']}).",
+          default=None, minimum=2, maximum=MAX_RESOLUTION),
+    Param("vndf_resolution", "int", f"vndf (warp) table per incident direction, n x n (default "
+          f"{DEFAULTS['vndf_resolution']}).", default=None, minimum=2, maximum=MAX_RESOLUTION),
+    Param("ndf_resolution", "int", f"ndf and sigma tables along theta (default {DEFAULTS['ndf_resolution']}).",
+          default=None, minimum=2, maximum=MAX_RESOLUTION),
+    Param("ndf_phi_resolution", "int", f"Anisotropic files: ndf and sigma tables along phi (default "
+          f"{DEFAULTS['ndf_phi_resolution']}).", default=None, minimum=2, maximum=MAX_RESOLUTION),
+    Param("anisotropic", "bool", "true: phi_i over [-180, 180] degrees; false: phi_i = [0] (default: the model's "
+          "isotropy).", default=None),
+    Param("ndf", "choice", "auto (the model's own D, else from back-scattering) | model | backscatter.",
+          default="auto", choices=NDF_CHOICES),
+    Param("wavelengths_nm", "floats", "Spectral models: wavelengths of the 'spectra' field in nm (default: the "
+          "model's own).", units="nm", default=None, minimum=0.0, exclusive_minimum=True),
+    Param("description", "text", "Text of the 'description' field (default: the model).", default=None),
+)
+#: ``{name: description}`` of the options.
+OPTIONS = {p.name: p.doc for p in PARAMS}
+
 
 
 def _int(key, value, lo, hi=MAX_RESOLUTION):

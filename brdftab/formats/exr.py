@@ -31,6 +31,7 @@ import numpy as np
 import xarray as xr
 
 from ..channels import Layout
+from ..params import Param
 from ..errors import BrdftabError, FormatError, ParameterError
 from ..grids import RusinkiewiczGrid, merl_grid
 from . import FileFormat, read_head, register
@@ -665,5 +666,7 @@ register(FileFormat(
     requires=("OpenEXR",),
     native_grid=native_grid,
     check_options=check_options,
-    options={"phi_d_deg": "phi_d slices in degrees (default: every phi_d node of the grid, one part each)"},
+    params=(Param("phi_d_deg", "floats", "phi_d slices in degrees, one part each (default: every phi_d node of the "
+                  "grid).", units="deg", default=None),),
+    precision=1e-6,  # float32 pixels
 ))

@@ -34,6 +34,7 @@ import xarray as xr
 
 from ..models.combinators import Average
 from ..channels import Layout
+from ..params import Kind, Param, register_kind
 from ..errors import FormatError, ParameterError
 from ..grids import merl_grid
 from . import FileFormat, read_head, register
@@ -208,6 +209,25 @@ def native_grid(requested, options: dict):
     return merl_grid()
 
 
+class _CountKind(Kind):
+    """true/false, or a whole number of samples in the declared range."""
+
+    name = "count"
+
+    def expected(self, p):
+        return f"true, false or a whole number of samples ({p.range_text()})"
+
+    def convert(self, p, value):
+        if isinstance(value, (bool, np.bool_)):
+            return bool(value)
+        if isinstance(value, (int, np.integer)) and p.in_range(np.array([float(value)])):
+            return int(value)
+        raise ParameterError(p.name, f"expected {self.expected(p)}, got {value!r}")
+
+
+register_kind(_CountKind())
+
+
 def check_options(sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False):
     if sample_position is not None and (not isinstance(sample_position, str) or sample_position not in _POSITIONS):
         raise ParameterError("sample_position", f"expected 'bin-centre' or 'lower-edge', got {sample_position!r}")
@@ -315,11 +335,14 @@ register(FileFormat(
     native_grid=native_grid,
     prepare=prepare_merl,
     check_options=check_options,
-    options={
-        "sample_position": "where tabulated samples sit in MERL's bins: 'bin-centre' (default) or 'lower-edge'",
-        "below_horizon": "value of bins whose directions lie below the horizon: 'zero' (default) or 'missing' "
-                         "(raw -1)",
-        "phi_h_average": "write the phi_h average of an anisotropic BRDF: true (36 samples) or a sample count",
-        "symmetrize": "write (f(wi, wo) + f(wo, wi)) / 2 of a non-reciprocal BRDF: true or false",
-    },
+    params=(
+        Param("sample_position", "choice", "Where tabulated samples sit in MERL's bins (default: bin-centre).",
+              default=None, choices=_POSITIONS),
+        Param("below_horizon", "choice", "Value of bins whose directions lie below the horizon: 0, or MERL's "
+              "missing marker (raw -1).", default="zero", choices=_BELOW_HORIZON),
+        Param("phi_h_average", "count", "Write the phi_h average of an anisotropic BRDF: true (36 samples) or a "
+              "sample count.", default=False, minimum=2, maximum=3600),
+        Param("symmetrize", "bool", "Write (f(wi, wo) + f(wo, wi)) / 2 of a non-reciprocal BRDF.", default=False),
+    ),
+    precision=1e-12,  # float64, scaled per channel
 ))

@@ -20,6 +20,7 @@ import numpy as np
 import xarray as xr
 
 from .._progress import write_step
+from ..params import Param
 from ..errors import FormatError, ParameterError
 from . import FileFormat, register
 
@@ -54,13 +55,6 @@ def read_netcdf(path):
 def _first_line(exc) -> str:
     text = str(exc).strip()
     return text.splitlines()[0] if text else type(exc).__name__
-
-
-def check_options(dtype: str = "float64", complevel: int = 4):
-    if dtype not in ("float32", "float64"):
-        raise ParameterError("dtype", f"expected 'float32' or 'float64', got {dtype!r}")
-    if isinstance(complevel, bool) or not isinstance(complevel, int) or not 0 <= complevel <= 9:
-        raise ParameterError("complevel", f"expected a whole number 0..9, got {complevel!r}")
 
 
 #: Uncompressed bytes per HDF5 chunk of ``brdf``; the variable is written one chunk at a time.
@@ -148,7 +142,7 @@ def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
     """Write ``table`` to ``path``: coordinates and attributes through xarray, then ``brdf``
     chunk by chunk (each chunk a :func:`~brdftab._progress.write_step`, so progress is shown
     and an interrupt acts between chunks)."""
-    check_options(dtype, complevel)
+    _FORMAT.validate_options({"dtype": dtype, "complevel": complevel})  # the declared Params
     var = table.ds["brdf"]
     ds, encoding = _cf_layout(table.ds)
     for name in ds.coords:
@@ -188,13 +182,17 @@ def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
                 write_step(done, total)
 
 
-register(FileFormat(
+_FORMAT = register(FileFormat(
     name="netcdf",
     extensions=(".nc", ".nc4", ".netcdf"),
     description="netCDF-4 table with CF-style units and brdftab provenance (any grid)",
     read=read_netcdf,
     write=write_netcdf,
     magic=MAGIC,
-    options={"dtype": "float64 (default) or float32", "complevel": "zlib level 0-9 (default 4)"},
-    check_options=check_options,
+    params=(
+        Param("dtype", "choice", "Storage type of the samples (values are computed in float64).", default="float64",
+              choices=("float64", "float32")),
+        Param("complevel", "int", "zlib compression level (0: none).", default=4, minimum=0, maximum=9),
+    ),
+    precision=1e-12,  # float64 samples (float32 when dtype = float32: 1e-6)
 ))

@@ -35,7 +35,7 @@ from __future__ import annotations
 
 from . import FileFormat, register
 from ._rgl_ndf import BACKSCATTER_BOUND, backscatter_bound, backscatter_ndf, model_ndf, sigma_table
-from ._rgl_options import DEFAULTS, MAX_RESOLUTION, NDF_CHOICES, OPTIONS, check_options, theta_i_nodes
+from ._rgl_options import DEFAULTS, MAX_RESOLUTION, NDF_CHOICES, OPTIONS, PARAMS, check_options, theta_i_nodes
 from ._rgl_read import RGB, RGLBSDF, RGLGrid, read_rgl, read_rgl_bytes
 from ._rgl_warp import HALF_PI, TWO_PI, elevation, node_geometry, phi2u, sph, theta2u, u2phi, u2theta
 from ._rgl_write import NDF_FLOOR, WARP_UNIFORM, RGLPayload, prepare_rgl, write_rgl
@@ -62,7 +62,8 @@ register(FileFormat(
     magic=(MAGIC,),
     requires=(),
     native_grid=_native_grid,
-    options=OPTIONS,
+    params=PARAMS,
     prepare=prepare_rgl,
     check_options=check_options,
+    precision=1e-9,  # the written float32 fields, read by the same reader
 ))

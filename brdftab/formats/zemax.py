@@ -102,7 +102,7 @@ def read_zemax(path):
         fmt = format_for(path)
     except Exception:  # noqa: BLE001 - no format for the extension: say what the file is
         fmt = None
-    if fmt is None or fmt is FORMATS.get("zemax"):
+    if fmt is None or fmt is FORMATS.get("zemax", None):
         raise FormatError(f"{path}: a text file, not a table format brdftab reads (known: "
                           f"{', '.join(sorted(n for n in FORMATS if n != 'zemax'))})")
     fmt.ensure_available()
