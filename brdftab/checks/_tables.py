@@ -416,6 +416,8 @@ def horizon_error(table, model, n: int = 8192, seed: int = 0, band: float = np.r
         return None
     t = np.asarray(table.eval(wi, wo, wavelengths), float)
     m = np.asarray(model.eval(wi, wo, wavelengths), float)
+    if t.shape != m.shape:  # a grey model behind an RGB table (MERL stores three channels)
+        t, m = np.broadcast_arrays(t, m)
     pos = np.isfinite(t) & np.isfinite(m) & (m > 0)
     if not pos.any():
         return None

@@ -437,6 +437,15 @@ def _layout_of(path, hdr, present):
 
 
 def read_exr(path):
+    """Read an EXR table (see :func:`_read_exr`); text attributes a damaged file cannot decode
+    are one FormatError line, like any other damage."""
+    try:
+        return _read_exr(path)
+    except UnicodeError as exc:
+        raise FormatError(f"{path}: damaged EXR header (an attribute's text cannot be decoded: {exc.reason})") from None
+
+
+def _read_exr(path):
     """Read BRDF slices (single- or multi-part EXR written by brdftab) into a table."""
     OpenEXR = _openexr()
     path = Path(path)
@@ -530,10 +539,13 @@ def _check_chromaticities(path, hdr, names) -> None:
         return
     try:
         xy = np.asarray(chroma, float).ravel()
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, UnicodeError, OverflowError):  # a damaged attribute (fuzzed files)
         xy = np.zeros(0)
     if xy.size != 8 or not np.allclose(xy, REC709, rtol=0, atol=1e-4):
-        shown = ", ".join(f"{x:.4g}" for x in xy) if xy.size else repr(chroma)
+        try:
+            shown = ", ".join(f"{x:.4g}" for x in xy) if xy.size else repr(chroma)
+        except Exception:  # noqa: BLE001 - a value that cannot even be shown
+            shown = "unreadable"
         raise FormatError(f"{path}: attribute chromaticities = ({shown}): brdftab reads RGB in Rec. 709 primaries "
                           "with a D65 white (0.64, 0.33, 0.3, 0.6, 0.15, 0.06, 0.3127, 0.329) only")
 
