@@ -10,7 +10,11 @@
 ``albedo``
     reports the a(θi) curve and the white-sky (bihemispherical) albedo; with ``expected``
     values (a number for every θi, or a list at ``expected_theta_i_deg``) and/or
-    ``white_sky``, compares them within ``tolerance``.
+    ``white_sky``, compares them within ``tolerance``. Its JSON ``data`` has a stable shape:
+    ``theta_i_deg`` [n_θ], ``channels`` [C], ``values`` [n_θ][C] (a(θi) averaged over φi),
+    ``coverage`` [n_θ], ``white_sky`` [C] (null when the sweep does not reach 0…80°),
+    ``coverage_min``; for an anisotropic BRDF also ``phi_i_deg`` [n_φ] and ``values_phi``
+    [n_θ][n_φ][C] (a(θi, φi) at every incidence azimuth).
 
 Both use :func:`brdftab.integrate.albedo_curve` on the same sweep and share the result.
 Missing samples are left out of the integrals; the smallest covered fraction of the

@@ -65,6 +65,11 @@ class Grid:
     summary = ""
     params: tuple = ()
     parameterizations: tuple = ()
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if "name" not in cls.__dict__:
+            cls.name = cls.type_name  # the attribute every registry member has (models, formats, checks)
     parameterization = "grid"
     axes: tuple = ()
 
