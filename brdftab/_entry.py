@@ -19,19 +19,38 @@ def _early_term(signum, frame):
     os._exit(143)
 
 
+_interrupted: list = []
+
+
+def _early_int(signum, frame):
+    _interrupted.append(signum)
+    raise KeyboardInterrupt
+
+
+def _stop_starting():
+    # nothing has been written yet; exit at once (an interpreter interrupted inside an import
+    # would otherwise report death by SIGINT instead of the exit status 130)
+    sys.stderr.write("brdftab: interrupted while starting; no output written\n")
+    sys.stderr.flush()
+    os._exit(130)
+
+
 def main():
     try:
-        previous = signal.signal(signal.SIGTERM, _early_term)
+        previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, _early_term),
+                    signal.SIGINT: signal.signal(signal.SIGINT, _early_int)}
     except ValueError:  # not the main thread
-        previous = None
+        previous = {}
     try:
         from .cli import main as cli_main
     except KeyboardInterrupt:
-        # nothing has been written yet; exit at once (an interpreter interrupted inside an
-        # import would otherwise report death by SIGINT instead of the exit status 130)
-        sys.stderr.write("brdftab: interrupted while starting; no output written\n")
-        sys.stderr.flush()
-        os._exit(130)
-    if previous is not None:
-        signal.signal(signal.SIGTERM, previous)
+        _stop_starting()
+    except ImportError:
+        # a C extension whose initialization the interrupt cut short reports ImportError
+        if _interrupted:
+            _stop_starting()
+        raise
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
     return cli_main(prog_name="brdftab")

@@ -1,4 +1,5 @@
-"""Atomic writes (brdftab._atomic): a full disk is one clear line, exit 2, nothing partial."""
+"""Atomic writes (brdftab._atomic): a full disk is one clear line, exit 2, nothing partial;
+errors writing name the target, never the hidden temporary."""
 
 from __future__ import annotations
 
@@ -18,11 +19,34 @@ from brdftab.cli import main
 from brdftab.grids import RusinkiewiczGrid
 from brdftab.table import tabulate
 
+TINY_GRID = '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 3\nn_theta_d = 3\nn_phi_d = 4\n'
+
+
+def _spec(folder: Path, output: str = "out.nc", name: str = "s.toml") -> Path:
+    path = folder / name
+    path.write_text(f'[model]\nname = "lambert"\nalbedo = 0.5\n{TINY_GRID}[[output]]\npath = "{output}"\n')
+    return path
+
 
 def _cli(*args):
     result = CliRunner().invoke(main, [str(a) for a in args])
     assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
     return result
+
+
+def _one_error(stderr: str, code: int, *expected) -> str:
+    assert code == 2, f"exit code {code}, stderr {stderr!r}"
+    assert "Traceback" not in stderr, stderr
+    lines = stderr.splitlines()
+    assert len(lines) == 1, f"expected one line on stderr, got {stderr!r}"
+    assert lines[0].startswith("brdftab: error: "), lines[0]
+    for text in expected:
+        assert text in lines[0], f"{text!r} missing from {lines[0]!r}"
+    return lines[0]
+
+
+def _names(folder: Path) -> list:
+    return sorted(p.name for p in folder.iterdir())
 
 
 def _full_disk_error(result, target: Path) -> str:
@@ -118,6 +142,30 @@ def test_enospc_from_a_plain_write_names_the_target_not_the_temporary(tmp_path, 
     line = _full_disk_error(result, tmp_path / "x.enospc")
     assert ".partial-" not in line
     assert sorted(os.listdir(tmp_path)) == ["s.toml"]
+
+
+def _register(name, write, read=None):
+    fmt = formats.FileFormat(name=name, extensions=(f".{name}",), description="test", read=read, write=write)
+    formats.register(fmt)
+    return fmt
+
+
+@pytest.fixture
+def denied_format():
+    def write(table, path, **kw):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    _register("denied", write)
+    yield
+    formats.FORMATS.pop("denied", None)
+
+
+def test_write_error_names_the_target_not_the_temporary(tmp_path, denied_format):
+    spec = _spec(tmp_path, output="x.denied")
+    result = _cli("tabulate", spec)
+    line = _one_error(result.stderr, result.exit_code, "x.denied", "Permission denied")
+    assert ".partial-" not in line
+    assert _names(tmp_path) == ["s.toml"]
 
 
 def test_other_write_errors_on_a_disk_with_room_are_not_called_full(tmp_path):

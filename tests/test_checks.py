@@ -9,10 +9,13 @@ against its model has relative error s − 1 at every point.
 """
 
 import json
+import subprocess
+import sys
 import xml.etree.ElementTree as ET
 
 import numpy as np
 import pytest
+from _tables import lambert_table
 
 import brdftab
 from brdftab import models
@@ -636,3 +639,47 @@ def test_errors_near_the_horizon_are_located():
     f, t = ggx.eval(wi, wo)[0], table.eval(wi, wo)[0]
     assert abs(t - f) / f == pytest.approx(h["max_relative"], abs=0.02)
     assert 0.2 < h["max_relative"] < 0.5  # measured 0.48 (θh beyond the last θh node, 89.0°)
+
+
+# -- tables whose samples were edited: an infinite sample, nothing measured, far too bright ----
+
+def test_infinite_sample_fails_finite_and_is_not_missing(tmp_path):
+    from brdftab.checks import run_checks
+
+    def put_inf(ds):
+        ds["brdf"][5, 5, 5, 0] = np.inf
+
+    t = brdftab.open(lambert_table(tmp_path, put_inf))
+    r = run_checks(t)
+    assert r.get("finite").status == "fail" and r.get("finite").data["inf"] == 1
+    assert t.missing is None
+
+
+def test_checks_skip_when_nothing_was_measured(tmp_path):
+    from brdftab.checks import run_checks
+
+    def all_missing(ds):
+        ds["brdf"][:] = -1.0
+        ds["brdf"].attrs["valid_min"] = 0.0
+
+    r = run_checks(brdftab.open(lambert_table(tmp_path, all_missing)))
+    for name in ("energy", "albedo", "tabulation"):
+        assert r.get(name).status == "skip", (name, r.get(name).detail)
+
+
+def test_energy_excess_far_beyond_interpolation_fails(tmp_path):
+    from brdftab.checks import run_checks
+
+    def bright(ds):
+        ds["brdf"][:] = 2.0
+
+    r = run_checks(brdftab.open(lambert_table(tmp_path, bright)), {"conventions": {"level": "warn"}})
+    assert r.get("energy").status == "fail" and r.get("energy").figure == pytest.approx(2 * np.pi, rel=1e-3)
+
+
+# -- thresholds that are angles are described in degrees ----------------------------------------
+
+def test_angle_thresholds_are_described_in_degrees(tmp_path):
+    p = subprocess.run([sys.executable, "-m", "brdftab", "validate", str(lambert_table(tmp_path)), "--set",
+                        "energy.theta_i_max_deg=95"], capture_output=True, text=True)
+    assert p.returncode == 2 and "89.99 deg, got 95" in p.stderr, p.stderr

@@ -10,6 +10,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+import os
 import shutil
 import signal
 import subprocess
@@ -23,8 +24,10 @@ import xarray as xr
 from click.testing import CliRunner
 
 import brdftab
+from brdftab import models
 from brdftab.cli import main
-from brdftab.grids import merl_grid
+from brdftab.errors import BrdftabError, ParameterError
+from brdftab.grids import GRIDS, merl_grid
 
 SPECS = Path(__file__).resolve().parent.parent / "specs"
 GGX_GOLD = SPECS / "ggx-gold.toml"
@@ -32,6 +35,8 @@ LAMBERT_WHITE = SPECS / "lambert-white.toml"
 
 WI_DEG = (30.0, 0.0)
 WO_DEG = (30.0, 180.0)
+
+TINY_GRID = '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 3\nn_theta_d = 3\nn_phi_d = 4\n'
 
 
 def _run(*args, cwd=None, timeout=120):
@@ -52,6 +57,23 @@ def _vec(theta_deg, phi_deg):
 
 def _partials(folder: Path):
     return sorted(p.name for p in folder.iterdir() if ".partial-" in p.name)
+
+
+def _spec(folder: Path, output: str = "out.nc", name: str = "s.toml") -> Path:
+    path = folder / name
+    path.write_text(f'[model]\nname = "lambert"\nalbedo = 0.5\n{TINY_GRID}[[output]]\npath = "{output}"\n')
+    return path
+
+
+def _one_error(stderr: str, code: int, *expected) -> str:
+    assert code == 2, f"exit code {code}, stderr {stderr!r}"
+    assert "Traceback" not in stderr, stderr
+    lines = stderr.splitlines()
+    assert len(lines) == 1, f"expected one line on stderr, got {stderr!r}"
+    assert lines[0].startswith("brdftab: error: "), lines[0]
+    for text in expected:
+        assert text in lines[0], f"{text!r} missing from {lines[0]!r}"
+    return lines[0]
 
 
 @pytest.fixture(scope="module")
@@ -155,6 +177,38 @@ def test_tabulate_refuses_existing_then_overwrites(ggx_nc):
     assert sorted(p.name for p in out.iterdir()) == ["ggx-gold.nc"]
     with xr.open_dataset(ggx_nc) as ds:
         assert ds["brdf"].shape == (90, 90, 180, 3)
+
+
+def test_info_text_is_readable(tmp_path):
+    # description, spec file and parameters shown readably
+    spec = tmp_path / "layered.toml"
+    spec.write_text('description = "plaster under a clear coat"\n[model]\nname = "sum"\n'
+                    '[[model.terms]]\nname = "lambert"\nalbedo = 0.05\n'
+                    '[[model.terms]]\nname = "microfacet"\nalpha = 0.1\n' + TINY_GRID +
+                    '[[output]]\npath = "layered.nc"\n')
+    assert _cli("tabulate", spec).exit_code == 0
+    result = _cli("info", tmp_path / "layered.nc")
+    assert result.exit_code == 0, result.stderr
+    lines = result.stdout.splitlines()
+    assert "  description: plaster under a clear coat" in lines
+    assert any(line.startswith("  spec file:") and "layered.toml" in line for line in lines)
+    assert "  model:       sum" in lines
+    assert "    terms[0]: lambert" in lines and "      albedo = 0.05" in lines
+    assert "    terms[1]: microfacet" in lines and "      alpha = 0.1" in lines
+    assert '      distribution = "ggx"' in lines
+    assert '{"' not in result.stdout  # no raw JSON
+
+
+def test_progress_bar_covers_the_write(tmp_path, monkeypatch):
+    from brdftab import table as table_module
+
+    monkeypatch.setattr(table_module, "PROGRESS_DELAY", 0.0)
+    spec = _spec(tmp_path, output="x.nc")
+    result = _cli("tabulate", spec, "--progress")
+    assert result.exit_code == 0, result.stderr
+    assert "tabulating" in result.stderr and "writing x.nc" in result.stderr
+    result = _cli("tabulate", spec, "--overwrite", "--no-progress")
+    assert result.exit_code == 0 and result.stderr == ""
 
 
 # --------------------------------------------------------------------------------------------
@@ -272,8 +326,31 @@ def test_eval_table_agrees_with_spec(ggx_nc):
     np.testing.assert_allclose(table_values, _in_process(GGX_GOLD), rtol=0.01)
 
 
+def test_eval_reads_a_table_by_content_whatever_its_name(tmp_path):
+    spec = _spec(tmp_path, output="t.nc")
+    assert _cli("tabulate", spec).exit_code == 0
+    (tmp_path / "t.nc").rename(tmp_path / "t.toml")
+    result = _cli("eval", tmp_path / "t.toml", "--wi-deg", "30,0", "--wo-deg", "30,180", "--json")
+    assert result.exit_code == 0, result.stderr
+    assert json.loads(result.stdout)["channels"]["mono"] == pytest.approx(0.5 / np.pi)
+    # and a spec with another extension is still a spec
+    other = tmp_path / "spec.txt"
+    other.write_bytes(spec.read_bytes())
+    result = _cli("eval", other, "--wi-deg", "30,0", "--wo-deg", "30,180", "--json")
+    assert result.exit_code == 0, result.stderr
+
+
+def test_eval_cli_prints_no_numpy_warnings(tmp_path):
+    spec = tmp_path / "s.toml"
+    spec.write_text('[model]\nname = "microfacet"\nalpha = 1e-6\n[grid]\ntype = "merl"\n[[output]]\npath = "x.nc"\n')
+    p = subprocess.run([sys.executable, "-W", "default", "-m", "brdftab", "eval", str(spec), "--wi-deg", "30,0",
+                        "--wo-deg", "30,180"], capture_output=True, text=True)
+    assert p.returncode == 0 and p.stderr == "", p.stderr
+    assert np.isfinite(float(p.stdout.split()[-1]))
+
+
 # --------------------------------------------------------------------------------------------
-# models, --version
+# models, grids, --version
 
 def test_models_lists_models():
     result = _cli("models")
@@ -314,6 +391,42 @@ def test_console_script_version():
     proc = subprocess.run([str(exe), "--version"], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, proc.stderr
     assert brdftab.__version__ in proc.stdout
+
+
+def test_grids_command_lists_types_and_keys():
+    out = subprocess.run([sys.executable, "-m", "brdftab", "grids", "--json"], capture_output=True, text=True)
+    assert set(json.loads(out.stdout)) == set(GRIDS)
+    out = subprocess.run([sys.executable, "-m", "brdftab", "grids", "rusinkiewicz", "--json"], capture_output=True,
+                         text=True)
+    keys = {r["key"]: r for r in json.loads(out.stdout)["keys"]}
+    assert keys["phi_d_fold"]["default"] == "reciprocity" and keys["theta_h_spacing"]["default"] == "linear"
+    assert keys["n_theta_h"]["default"] == 90 and "theta_h_deg" in keys
+
+
+# --------------------------------------------------------------------------------------------
+# --debug after the verb; a closed pipe ends quietly
+
+def test_debug_after_the_verb_shows_the_traceback(tmp_path):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[model]\nname = "nosuch"\n')
+    proc = _run("tabulate", bad, "--debug")
+    assert "Traceback" in proc.stderr and "SpecError" in proc.stderr
+    proc = _run("--debug", "tabulate", bad)
+    assert "Traceback" in proc.stderr
+    proc = _run("tabulate", bad)
+    _one_error(proc.stderr, proc.returncode, "bad.toml")
+
+
+def test_closed_stdout_pipe_ends_quietly():
+    r, w = os.pipe()
+    os.close(r)  # the reader is gone before brdftab writes a byte (like `| head -1` after its line)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "brdftab", "models", "microfacet"], stdout=w,
+                              stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(w)
+    assert proc.stderr == ""
+    assert proc.returncode == 141  # 128 + SIGPIPE, as for a process the pipe killed
 
 
 # --------------------------------------------------------------------------------------------
@@ -392,6 +505,20 @@ def test_lambert_default_albedo(tmp_path):
     assert json.loads(result.stdout)["channels"]["mono"] == pytest.approx(1.0 / np.pi)
 
 
+def test_api_misuse_is_a_brdftab_error(tmp_path):
+    m = models.create("lambert", albedo=0.5)
+    brdftab.save(m, tmp_path / "a.nc", grid="merl")
+    brdftab.save(m, tmp_path / "b.nc", grid={"type": "rusinkiewicz", "n_theta_h": 4, "n_theta_d": 4, "n_phi_d": 4})
+    assert brdftab.open(tmp_path / "a.nc").grid.equals(merl_grid())
+    assert brdftab.open(tmp_path / "b.nc").grid.shape == (4, 4, 4)
+    with pytest.raises(BrdftabError, match="expected a BRDF"):
+        brdftab.save(np.zeros(3), tmp_path / "c.nc", grid="merl")
+    with pytest.raises(BrdftabError, match="grid must be"):
+        brdftab.save(m, tmp_path / "c.nc", grid=3)
+    with pytest.raises(ParameterError, match="trailing axis of length 3"):
+        m.eval(np.zeros((3, 2)), [0, 0, 1])
+
+
 # -- formats, help that lists the choices, non-finite eval ---------------------------------------
 
 def test_formats_lists_every_format_and_one_formats_options():
@@ -456,3 +583,11 @@ def test_checks_show_progress_only_when_asked_and_slow(monkeypatch, capsys):
     monkeypatch.setattr(checks.CHECKS["finite"], "run", real)
     run_checks(lam, only=("finite", "non-negative"), progress=True)   # fast: the bar waits 1 s, never shows
     assert capsys.readouterr().err == ""
+
+
+def test_info_of_a_table_naming_no_registered_model(tmp_path):
+    # a MERL file names its material, not a model: info describes it (no unknown-model error)
+    path = tmp_path / "paint.binary"
+    brdftab.save(brdftab.models.create("lambert", albedo=0.3), path)
+    r = CliRunner().invoke(main, ["info", str(path)])
+    assert r.exit_code == 0 and "model:       unknown" in r.output, r.output

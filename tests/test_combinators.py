@@ -1,5 +1,6 @@
 """The rotated-frame combinator: Eq. 7's rotation, the tilted horizon, use from a spec, and the
-albedo quadrature that follows a lobe about a tilted normal."""
+albedo quadrature that follows a lobe about a tilted normal; the average combinator's closed
+forms."""
 
 import math
 
@@ -94,3 +95,30 @@ def test_albedo_follows_a_lobe_about_a_tilted_normal(alpha, tilt):
         ref = inner + outer
         got = directional_albedo(m, theta_i, R(200.0))[0]
         assert got == pytest.approx(ref, rel=2e-3)
+
+
+# -- the average combinator ------------------------------------------------------------------------
+
+def test_average_combinator_closed_forms():
+    from brdftab.brdf import BRDF
+    from brdftab.geometry import sph_to_vec
+
+    class Toy(BRDF):  # f = (0.2 + 0.3 cosθi + 0.1 sin²θi cos 2φi) / π: not reciprocal, not isotropic
+        name = "toy"
+        reciprocal = False
+        isotropic = False
+
+        def _eval(self, wi, wo, lam, n):
+            phi = np.arctan2(wi[:, 1], wi[:, 0])
+            f = (0.2 + 0.3 * wi[:, 2] + 0.1 * (1 - wi[:, 2] ** 2) * np.cos(2 * phi)) / np.pi
+            return np.repeat(f[:, None], n, axis=1)
+
+    rng = np.random.default_rng(2)
+    wi = sph_to_vec(np.arccos(rng.uniform(0.1, 1, 200)), rng.uniform(0, 6.3, 200))
+    wo = sph_to_vec(np.arccos(rng.uniform(0.1, 1, 200)), rng.uniform(0, 6.3, 200))
+    iso = models.create("average", term=Toy(), rotations=8)  # 8 rotations cancel cos 2φ exactly
+    assert iso.isotropic and not iso.reciprocal
+    np.testing.assert_allclose(iso.eval(wi, wo)[:, 0], (0.2 + 0.3 * wi[:, 2]) / np.pi, rtol=1e-12)
+    both = models.create("average", term=Toy(), rotations=8, swap=True)
+    assert both.reciprocal
+    np.testing.assert_allclose(both.eval(wi, wo)[:, 0], (0.2 + 0.15 * (wi[:, 2] + wo[:, 2])) / np.pi, rtol=1e-12)

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import xarray as xr
+from _tables import lambert_table
 from click.testing import CliRunner
 
 import brdftab
@@ -166,8 +167,10 @@ def test_a_format_registered_later_works_without_changes(rusi_nc, tmp_path):
         written.append(scale)
         (table.ds * 1).to_netcdf(path, engine="netcdf4")
 
+    from brdftab.params import Param
+
     fmt = formats.FileFormat(name="plugin-test", extensions=(".plug",), description="test", read=None, write=write,
-                             options={"scale": "a number"})
+                             params=(Param("scale", "float", "A scale factor.", default=1.0, minimum=0.0),))
     formats.register(fmt)
     try:
         result = _cli("convert", rusi_nc, tmp_path / "x.plug", "-o", "scale=2.5")
@@ -221,6 +224,17 @@ def test_grid_from_a_grid_file_or_a_spec(rusi_nc, tmp_path):
     (tmp_path / "nogrid.toml").write_text("[model]\nname = 'lambert'\n")
     result = _cli("convert", rusi_nc, tmp_path / "n.nc", "--grid-file", tmp_path / "nogrid.toml")
     _one_error(result.stderr, result.exit_code, "nogrid.toml", "[grid]")
+
+
+def test_errors_inside_the_run_keep_their_one_line(tmp_path):
+    src = lambert_table(tmp_path)
+    p = subprocess.run([sys.executable, "-m", "brdftab", "convert", str(src), str(tmp_path / "o.bsdf"),
+                        "-o", "ndf=model"], capture_output=True, text=True)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and "ndf" in p.stderr and "internal" not in p.stderr
+    assert not (tmp_path / "o.bsdf").exists()
+    p = subprocess.run([sys.executable, "-m", "brdftab", "convert", str(src), str(tmp_path / "o.bsdf"),
+                        "--grid", "merl"], capture_output=True, text=True)
+    assert p.returncode == 2 and "--grid is not used" in p.stderr
 
 
 # --------------------------------------------------------------------------------------------

@@ -1,5 +1,5 @@
 """OpenEXR slices: exact float32 round trips, header attributes, the image layout as OpenEXR
-itself reads it, chosen slices, and damaged files.
+itself reads it, chosen slices, and damaged files; brdftab without OpenEXR installed.
 
 Pixel values are checked against the model evaluated at directions built in this file from
 the Rusinkiewicz inverse map (formats.md §1.2), and files are opened with ``OpenEXR.File``
@@ -9,6 +9,8 @@ directly, not only through brdftab.
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import OpenEXR
@@ -360,3 +362,24 @@ def test_layout_attributes_that_cannot_be_honoured_are_refused(tmp_path, exr_fil
         brdftab.open(bad)
     msg = str(info.value)
     assert message in msg and str(bad) in msg and "\n" not in msg
+
+
+# -- OpenEXR is an optional library ------------------------------------------------------------------
+
+def test_import_and_other_formats_work_without_openexr(tmp_path):
+    code = ("import sys; sys.modules['OpenEXR'] = None\n"
+            "import brdftab, brdftab.formats as f\n"
+            "print(sorted(n for n, x in f.FORMATS.items() if not x.available))\n"
+            "t = brdftab.tabulate(brdftab.models.create('lambert'), brdftab.grids.RusinkiewiczGrid(3, 3, 3),"
+            " progress=False)\n"
+            f"brdftab.save(t, {str(tmp_path / 'a.nc')!r})\n"
+            "try:\n"
+            f"    brdftab.save(t, {str(tmp_path / 'a.exr')!r})\n"
+            "except brdftab.BrdftabError as e:\n"
+            "    print('ERR', e)\n")
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    lines = p.stdout.splitlines()
+    assert "'exr'" in lines[0]
+    assert lines[1].startswith("ERR") and "OpenEXR" in lines[1] and "not installed" in lines[1]
+    assert (tmp_path / "a.nc").exists() and not (tmp_path / "a.exr").exists()

@@ -1,11 +1,21 @@
-"""Grids: node positions, index <-> direction maps, folds, spec configuration."""
+"""Grids: node positions, index <-> direction maps, folds, spec configuration; azimuth axes
+that cover part of the circle, all of it, or (explicit φd slices) only their own arc."""
 
 import numpy as np
 import pytest
 
-from brdftab.errors import ParameterError
+import brdftab
+from brdftab import models
+from brdftab.errors import BrdftabError, ParameterError
 from brdftab.geometry import io_to_hd, sph_to_vec
 from brdftab.grids import (RusinkiewiczGrid, SphericalGrid, fold_phi_d, grid_from_config, merl_grid)
+from brdftab.table import tabulate
+
+GGX = models.create("microfacet", alpha=0.3)
+
+
+def sph(theta_deg, phi_deg):
+    return sph_to_vec(np.radians(theta_deg), np.radians(phi_deg))
 
 
 def test_merl_bin_centre_nodes():
@@ -154,3 +164,43 @@ def test_rusinkiewicz_horizon_mask_equals_the_directions(grid):
     expected = ((wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12)).reshape(grid.shape)
     assert np.array_equal(grid.node_above_horizon(), expected)
     assert 0 < expected.sum() < expected.size
+
+
+# -- azimuth axes ----------------------------------------------------------------------------------
+
+def test_partial_phi_axis_returns_its_own_nodes():
+    m = models.create("microfacet", alpha_x=0.2, alpha_y=0.5)
+    g = SphericalGrid(np.radians([30]), np.radians([10]), np.radians([20, 40]), np.radians([200, 220, 240]))
+    t = tabulate(m, g, progress=False)
+    wi, wo = g.directions()
+    assert np.array_equal(t.eval(wi, wo), t.values.reshape(-1, 1))
+    # queries in the uncovered arc go to the nearer end node
+    g_ax = g.axes[3]
+    assert g_ax.fractional_index(np.radians([250, 180, 0, 190])).tolist() == [2, 0, 2, 0]  # 0° is 120° from 240°
+    assert g_ax.fractional_index(np.radians([-100, -140])).tolist() == [2, 1]  # 260° and 220°
+
+
+def test_zero_to_360_inclusive_is_one_full_periodic_axis():
+    g = grid_from_config({"type": "spherical", "theta_i_deg": [30], "phi_i_deg": [0], "theta_o_deg": [30, 40],
+                          "phi_o_deg": {"start": 0, "stop": 360, "step": 30}})
+    ax = g.axes[3]
+    assert len(ax) == 12 and ax.period == pytest.approx(2 * np.pi)
+    m = models.create("sum", terms=[models.create("lambert", albedo=0.3), models.create("microfacet", alpha=0.4)])
+    t = tabulate(m, g, progress=False)
+    wi, wo = sph_to_vec(np.radians(30), 0.0), sph_to_vec(np.radians(30), np.radians(210))
+    assert t.eval(wi, wo)[0] == pytest.approx(m.eval(wi, wo)[0], rel=0.05)
+
+
+def test_explicit_phi_d_slices_cover_only_their_arc(tmp_path):
+    # one φd slice (e.g. a single-slice EXR) is not an answer for every φd; an evenly spaced
+    # list that goes round the fold's period stays periodic
+    one = brdftab.grids.RusinkiewiczGrid(20, 20, np.radians([90.0]))
+    assert one.axes[2].period is None and one.axes[2].domain == pytest.approx((np.pi / 2, np.pi / 2))
+    t = tabulate(GGX, one, progress=False)
+    t.outside = "raise"
+    with pytest.raises(BrdftabError, match=r"phi_d in \[90, 90\] deg"):
+        t.eval(sph(30, 0), sph(40, 115))
+    ring = brdftab.grids.RusinkiewiczGrid(20, 20, np.radians(np.arange(0, 180, 10.0)))
+    assert ring.axes[2].period == pytest.approx(np.pi)
+    brdftab.save(t, tmp_path / "one.nc")
+    assert brdftab.open(tmp_path / "one.nc").grid.axes[2].period is None

@@ -1,19 +1,29 @@
-"""netCDF read/write: exact round trips, CF attributes, atomic writes."""
+"""netCDF read/write: exact round trips, CF attributes, atomic writes; tampered, damaged and
+foreign files; lazy reading of huge declared tables; the writer's progress steps."""
 
 import os
+import subprocess
+import sys
 
 import netCDF4
 import numpy as np
 import pytest
 import xarray as xr
+from _tables import lambert_table
 
 import brdftab
-from brdftab import formats, models
+from brdftab import _progress, formats, models
 from brdftab.errors import BrdftabError, FormatError
+from brdftab.geometry import sph_to_vec
 from brdftab.grids import RusinkiewiczGrid, SphericalGrid, merl_grid
 from brdftab.table import tabulate
 
 GGX = models.create("microfacet", alpha=0.25, fresnel="conductor", n=[0.2, 0.4, 1.4], k=[3.5, 2.4, 1.8])
+PLAIN_GGX = models.create("microfacet", alpha=0.3)  # no Fresnel term: one channel
+
+
+def sph(theta_deg, phi_deg):
+    return sph_to_vec(np.radians(theta_deg), np.radians(phi_deg))
 
 
 @pytest.mark.parametrize("grid", [
@@ -200,3 +210,204 @@ def test_specular_reflectance_in_percent_is_converted(tmp_path):
         nc.variables["specular_reflectance"].setncattr("units", "sr-1")
     with pytest.raises(FormatError, match="specular_reflectance' has units = 'sr-1'"):
         brdftab.open(path)
+
+
+def test_non_numeric_table_variable_is_refused(tmp_path):
+    t = tabulate(PLAIN_GGX, RusinkiewiczGrid(2, 2, 2), progress=False)
+    ds = t.ds.copy()
+    ds["brdf"] = ds["brdf"].astype(str)
+    ds.to_netcdf(tmp_path / "s.nc")
+    with pytest.raises(FormatError, match="numeric"):
+        brdftab.open(tmp_path / "s.nc")
+
+
+def test_conforming_file_without_optional_attributes_is_read(tmp_path):
+    # another writer: coordinates in degrees, only the required attributes
+    import xarray as xr
+
+    g = merl_grid()
+    t = tabulate(PLAIN_GGX, g, progress=False)
+    ds = xr.Dataset({"brdf": (("theta_h", "theta_d", "phi_d", "channel"), t.values, {"units": "sr-1"})},
+                    coords={n: (n, np.degrees(a.values), {"units": "degree"}) for n, a in zip(g.dims, g.axes)}
+                    | {"channel": ["mono"]},
+                    attrs={"parameterization": "rusinkiewicz", "phi_d_fold": "reciprocity"})
+    ds.to_netcdf(tmp_path / "other.nc")
+    back = brdftab.open(tmp_path / "other.nc")
+    assert back.grid.equals(g)
+    w1, w2 = sph(25, 0), sph(40, 200)
+    assert back.eval(w1, w2) == pytest.approx(t.eval(w1, w2), rel=1e-12)
+    ds.attrs.pop("phi_d_fold")
+    ds.to_netcdf(tmp_path / "nofold.nc")
+    with pytest.raises(FormatError, match="phi_d_fold"):
+        brdftab.open(tmp_path / "nofold.nc")
+
+
+# -- the reader checks the file: tampered attributes and coordinates -------------------------------
+
+@pytest.fixture(scope="module")
+def good_nc(tmp_path_factory):
+    path = tmp_path_factory.mktemp("nc") / "good.nc"
+    t = tabulate(PLAIN_GGX, brdftab.grids.RusinkiewiczGrid(12, 10, 18, theta_h_spacing="merl"), progress=False)
+    brdftab.save(t, path)
+    return path
+
+
+def _tamper(src, dst, fn):
+    import shutil
+
+    shutil.copy(src, dst)
+    with netCDF4.Dataset(dst, "a") as nc:
+        fn(nc)
+    return dst
+
+
+@pytest.mark.parametrize("name, fn, expected", [
+    ("bogus-spacing", lambda nc: nc.setncattr("theta_h_spacing", "bogus"), "theta_h_spacing"),
+    ("bogus-fold", lambda nc: nc.setncattr("phi_d_fold", "bogus"), "phi_d_fold"),
+    ("relabelled-fold", lambda nc: nc.setncattr("phi_d_fold", "none"), "phi_d"),
+    ("nan-coordinate", lambda nc: nc.variables["theta_d"].__setitem__(3, np.nan), "theta_d"),
+    ("degrees-labelled-rad", lambda nc: nc.variables["theta_d"].__setitem__(slice(None),
+                                                                          np.degrees(nc.variables["theta_d"][:])),
+     "theta_d"),
+    ("unknown-units", lambda nc: nc.variables["phi_d"].setncattr("units", "furlong"), "units"),
+    ("wrong-spacing", lambda nc: nc.setncattr("theta_h_spacing", "linear"), "theta_h"),
+    ("no-parameterization-value", lambda nc: nc.setncattr("parameterization", "hexagonal"), "parameterization"),
+])
+def test_tampered_files_are_refused_naming_the_attribute(tmp_path, good_nc, name, fn, expected):
+    bad = _tamper(good_nc, tmp_path / f"{name}.nc", fn)
+    with pytest.raises(FormatError, match=expected) as exc:
+        brdftab.open(bad)
+    assert str(bad) in str(exc.value) and "\n" not in str(exc.value)
+    p = subprocess.run([sys.executable, "-m", "brdftab", "info", str(bad)], capture_output=True, text=True)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1 and expected in p.stderr, p.stderr
+
+
+def test_missing_coordinate_is_refused(tmp_path, good_nc):
+    import xarray as xr
+
+    with xr.open_dataset(good_nc) as ds:
+        ds = ds.load().drop_vars("theta_h")
+    bad = tmp_path / "nocoord.nc"
+    ds.to_netcdf(bad)
+    with pytest.raises(FormatError, match="missing coordinate 'theta_h'"):
+        brdftab.open(bad)
+
+
+def test_coordinates_in_degrees_are_converted(tmp_path, good_nc):
+    def to_degrees(nc):
+        for name in ("theta_h", "theta_d", "phi_d"):
+            v = nc.variables[name]
+            v[:] = np.degrees(v[:])
+            v.setncattr("units", "degree")
+            if "domain" in v.ncattrs():
+                v.setncattr("domain", np.degrees(v.getncattr("domain")))
+    t = brdftab.open(_tamper(good_nc, tmp_path / "deg.nc", to_degrees))
+    ref = brdftab.open(good_nc)
+    w1, w2 = sph(20, 0), sph(40, 170)
+    assert t.eval(w1, w2) == pytest.approx(ref.eval(w1, w2), rel=1e-9)
+
+
+def test_damaged_sample_data_is_a_format_error(tmp_path):
+    path = lambert_table(tmp_path)
+    data = bytearray(path.read_bytes())
+    mid = len(data) // 2
+    data[mid:mid + 4000] = bytes(b ^ 0xFF for b in data[mid:mid + 4000])
+    path.write_bytes(bytes(data))
+    for cmd in (["info"], ["validate"], ["eval", "--wi-deg", "30,0", "--wo-deg", "30,180"]):
+        p = subprocess.run([sys.executable, "-m", "brdftab", cmd[0], str(path), *cmd[1:]], capture_output=True,
+                           text=True)
+        assert p.returncode == 2 and p.stderr.count("\n") == 1, (cmd, p.stderr)
+        assert "damaged" in p.stderr or "not a readable netCDF" in p.stderr, p.stderr
+
+
+# -- a huge declared table is not loaded to be described or evaluated ------------------------------
+
+def _huge(path, n_theta_h=2000):
+    """A small file declaring a float64 table of n_theta_h x 90 x 180 x 3 (nothing written)."""
+    g = merl_grid()
+    with netCDF4.Dataset(path, "w") as nc:
+        nc.createDimension("theta_h", n_theta_h)
+        for name, n in (("theta_d", 90), ("phi_d", 180), ("channel", 3)):
+            nc.createDimension(name, n)
+        u = (np.arange(n_theta_h) + 0.5) / n_theta_h
+        for name, vals in (("theta_h", u ** 2 * np.pi / 2), ("theta_d", g.axes[1].values),
+                           ("phi_d", g.axes[2].values)):
+            v = nc.createVariable(name, "f8", (name,))
+            v[:] = vals
+            v.units = "rad"
+        c = nc.createVariable("channel", str, ("channel",))
+        for i, x in enumerate("RGB"):
+            c[i] = x
+        nc.createVariable("brdf", "f8", ("theta_h", "theta_d", "phi_d", "channel"), zlib=True,
+                          chunksizes=(1, 90, 180, 3))
+        nc.variables["brdf"].units = "sr-1"  # without it the file does not say the values are f_r: refused
+        nc.variables["brdf"][0] = np.ones((90, 180, 3))  # one slab written
+        nc.setncatts({"parameterization": "rusinkiewicz", "grid": "huge", "theta_h_spacing": "merl",
+                      "phi_d_fold": "reciprocity", "sample_position": "bin-centre"})
+    return path
+
+
+def test_open_is_lazy_and_fill_values_are_missing(tmp_path):
+    path = _huge(tmp_path / "huge.nc", n_theta_h=4)
+    t = brdftab.open(path)
+    assert t._values is None  # nothing loaded by opening
+    miss = t.missing
+    assert miss is not None and miss.sum() == 3 * 90 * 180 * 3 and not miss[0].any()
+
+
+def test_info_on_a_huge_declared_table_streams(tmp_path):
+    path = _huge(tmp_path / "huge.nc")  # declares 2000 x 90 x 180 x 3 float64 = 777 MB
+    code = ("import resource, subprocess, sys; "
+            f"p = subprocess.run([sys.executable, '-m', 'brdftab', 'info', '--json', {str(path)!r}], "
+            "capture_output=True, text=True); "
+            "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); print(p.returncode); print(p.stdout)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.splitlines()
+    peak_kib, rc = int(out[0]), int(out[1])
+    assert rc == 0
+    import json
+
+    info = json.loads(out[2])
+    assert info["missing"] == (2000 - 1) * 90 * 180 * 3
+    assert info["max"] == 1.0  # the fill value 9.97e36 is not data
+    assert peak_kib < 450 * 1024, f"info used {peak_kib / 1024:.0f} MiB for a 777 MB declared table"
+
+
+def test_eval_on_a_huge_declared_table_reads_a_slab(tmp_path):
+    path = _huge(tmp_path / "huge.nc")  # 777 MB declared, one θh slab written (ones)
+    code = ("import resource, subprocess, sys; "
+            f"p = subprocess.run([sys.executable, '-m', 'brdftab', 'eval', {str(path)!r}, '--wi-deg', '30,0', "
+            "'--wo-deg', '30,180', '--json'], capture_output=True, text=True); "
+            "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss); print(p.returncode); "
+            "print(p.stdout.strip() or p.stderr.strip())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True).stdout.splitlines()
+    peak_kib, rc = int(out[0]), int(out[1])
+    assert rc == 0, out
+    import json
+
+    # the mirror pair sits at θh = 0: the written slab (1.0); the unwritten neighbours are missing
+    assert json.loads(out[2])["channels"]["R"] == pytest.approx(1.0, rel=1e-12)
+    assert peak_kib < 450 * 1024, f"eval used {peak_kib / 1024:.0f} MiB for a 777 MB declared table"
+
+
+# -- the writer reports its steps --------------------------------------------------------------------
+
+def test_netcdf_writer_reports_steps_and_writes_the_same_values(tmp_path, monkeypatch):
+    from brdftab.formats import netcdf
+    from brdftab.table import tabulate
+
+    monkeypatch.setattr(netcdf, "CHUNK_BYTES", 512)
+    table = tabulate(brdftab.models.create("microfacet", alpha=0.3), RusinkiewiczGrid(12, 10, 16), progress=False)
+    steps = []
+    _progress._observers.append(lambda done, total: steps.append((done, total)))
+    try:
+        brdftab.save(table, tmp_path / "a.nc", dtype="float32")
+    finally:
+        _progress._observers.pop()
+    total = table.values.size
+    assert len(steps) > 5 and steps[0] == (0, total) and steps[-1] == (total, total)
+    assert all(b[0] >= a[0] for a, b in zip(steps, steps[1:]))
+    back = brdftab.open(tmp_path / "a.nc")
+    np.testing.assert_array_equal(back.values, table.values.astype(np.float32))
+    with xr.open_dataset(tmp_path / "a.nc") as ds:
+        assert ds["brdf"].dtype == np.float32 and ds["brdf"].attrs["units"] == "sr-1"
+        assert "_FillValue" not in ds["brdf"].encoding or ds["brdf"].encoding["_FillValue"] is None

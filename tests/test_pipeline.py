@@ -1,13 +1,16 @@
-"""The spec -> table -> validate -> write pipeline: refusal of invalid tables."""
+"""The spec -> table -> validate -> write pipeline: refusal of invalid tables; one tabulation
+per target grid."""
 
 import numpy as np
 import pytest
 
+import brdftab
+from brdftab import formats
 from brdftab.brdf import BRDF
 from brdftab.errors import ValidationError
-from brdftab.grids import RusinkiewiczGrid
+from brdftab.grids import RusinkiewiczGrid, merl_grid
 from brdftab.pipeline import run
-from brdftab.spec import Output, Spec
+from brdftab.spec import Output, Spec, load_spec
 
 
 class Broken(BRDF):
@@ -43,3 +46,45 @@ def test_invalid_table_written_when_allowed(tmp_path):
     assert (tmp_path / "x.nc").exists()
     result = run(make_spec(tmp_path, allow=True), overwrite=True, progress=False)
     assert not result.report.passed
+
+
+# -- one tabulation per target grid -------------------------------------------------------------
+
+def _npz_write(table, path, **options):
+    np.save(open(path, "wb"), table.values)
+
+
+@pytest.fixture
+def merl_grid_format():
+    """A stand-in format whose native grid is the MERL grid (values in an .npy file)."""
+    fmt = formats.FileFormat(name="merlgrid-test", extensions=(".mgt",), description="test", read=None,
+                             write=_npz_write, native_grid=lambda requested, options: merl_grid())
+    formats.register(fmt)
+    yield fmt
+    del formats.FORMATS[fmt.name]
+
+
+def test_each_output_tabulates_the_model_on_its_own_grid(tmp_path, merl_grid_format, monkeypatch):
+    spec = tmp_path / "two.toml"
+    spec.write_text('[model]\nname = "microfacet"\nalpha = 0.3\nfresnel = "conductor"\nn = 0.2\nk = 3.0\n'
+                    '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 30\nn_theta_d = 30\nn_phi_d = 60\n'
+                    '[[output]]\npath = "rus.nc"\n[[output]]\npath = "merl.mgt"\n')
+    from brdftab import pipeline
+
+    calls = []
+    real = pipeline.tabulate
+    monkeypatch.setattr(pipeline, "tabulate", lambda brdf, grid, *a, **k: calls.append(grid) or real(brdf, grid, *a,
+                                                                                                         **k))
+    s = load_spec(spec)
+    pipeline.run(s, progress=False)
+    assert len(calls) == 2 and calls[1].equals(merl_grid())
+    stored = np.load(tmp_path / "merl.mgt")
+    # the model itself at MERL bin centres (from the formula), not an interpolated table
+    i, j, k = np.meshgrid(np.arange(90), np.arange(90), np.arange(180), indexing="ij")
+    th = ((i + 0.5) / 90) ** 2 * np.pi / 2
+    td, pd = np.radians(j + 0.5), np.radians(k + 0.5)
+    wi, wo = brdftab.geometry.hd_to_io(th, 0.0, td, pd)
+    expected = s.model.eval(wi.reshape(-1, 3), wo.reshape(-1, 3)).reshape(stored.shape)
+    assert np.allclose(stored, expected, rtol=1e-12, atol=0)
+    rus = brdftab.open(tmp_path / "rus.nc")
+    assert rus.grid.shape == (30, 30, 60)

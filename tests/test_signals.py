@@ -17,10 +17,12 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _stepped import start_stepped, wait_for
 from click.testing import CliRunner
 
 import brdftab
 from brdftab import _signals, formats
+from brdftab._signals import held_signals
 from brdftab.cli import main
 from brdftab.grids import RusinkiewiczGrid
 from brdftab.table import tabulate
@@ -156,6 +158,16 @@ def test_held_signals_act_at_the_checkpoint():
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
 
+def test_deferred_signals_hold_sigint_until_the_block_ends():
+    reached_end = False
+    with pytest.raises(KeyboardInterrupt):
+        with held_signals():
+            os.kill(os.getpid(), signal.SIGINT)
+            time.sleep(0.05)
+            reached_end = True
+    assert reached_end
+
+
 # --------------------------------------------------------------------------------------------
 # A signal whose exception a library swallowed is not lost
 
@@ -190,3 +202,84 @@ def test_swallowed_interrupt_still_stops_the_command_and_writes_nothing(tmp_path
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.toml"]
     assert _signals.pending() is None  # the next command starts afresh
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_a_signal_during_start_up_ends_quietly(tmp_path, sig, code):
+    """The entry point installs its handlers before the heavy imports (numpy, xarray, netCDF4):
+    a signal while they load ends with 130 / 143 and no traceback."""
+    import subprocess
+    import sys
+    import time
+
+    for delay in (0.25, 0.4, 0.6):      # after the interpreter itself has started
+        proc = subprocess.Popen([sys.executable, "-m", "brdftab", "models"], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        time.sleep(delay)
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=30)
+        if proc.returncode == 0:       # it had finished already: nothing to interrupt
+            continue
+        assert proc.returncode == code, (delay, proc.returncode, err)
+        assert "Traceback" not in err and len(err.strip().splitlines()) <= 1, err
+
+
+# --------------------------------------------------------------------------------------------
+# A signal during a write: the temporary is removed; a writer that reports its steps stops at
+# the next step, one that does not finishes the write first
+
+SLOW_WRITER = textwrap.dedent("""
+    import sys, time
+    from brdftab import formats
+    from brdftab.cli import main
+
+    def slow(table, path, **kw):
+        with open(path, "wb") as fh:
+            fh.write(b"partial")
+            fh.flush()
+            time.sleep(3)
+            fh.write(b" and the rest")
+
+    fmt = formats.FileFormat(name="slow", extensions=(".slow",), description="test", read=None, write=slow)
+    formats.register(fmt)
+    main(["tabulate", sys.argv[1]], prog_name="brdftab")
+""")
+
+
+def test_sigterm_while_writing_removes_the_temporary_and_exits(tmp_path):
+    (tmp_path / "slow.py").write_text(SLOW_WRITER)
+    (tmp_path / "s.toml").write_text('[model]\nname = "lambert"\n[grid]\ntype = "rusinkiewicz"\nn_theta_h = 3\n'
+                                     'n_theta_d = 3\nn_phi_d = 3\n[[output]]\npath = "x.slow"\n')
+    proc = subprocess.Popen([sys.executable, "slow.py", "s.toml"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 30
+    while not any(".partial-" in p.name for p in tmp_path.iterdir()):
+        assert proc.poll() is None and time.time() < deadline, "the writer never started"
+        time.sleep(0.02)
+    proc.send_signal(signal.SIGTERM)
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 143, err  # 128 + SIGTERM
+    # this writer reports no steps, so the run says it finishes the write before it stops
+    assert err.splitlines() == ["brdftab: finishing the write of x.slow before stopping...",
+                                "brdftab: terminated; no output written"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.toml", "slow.py"]
+
+
+@pytest.mark.parametrize("sig, code, word", [(signal.SIGTERM, 143, "terminated"),
+                                             (signal.SIGINT, 130, "interrupted")])
+def test_signal_during_a_stepped_write_acts_at_the_next_step(tmp_path, sig, code, word):
+    proc = start_stepped(tmp_path)
+    try:
+        wait_for(tmp_path, ".partial-", proc)
+        time.sleep(0.3)
+        sent = time.monotonic()
+        proc.send_signal(sig)
+        out, err = proc.communicate(timeout=30)
+        took = time.monotonic() - sent
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == code, err
+    assert err.splitlines() == [f"brdftab: {word}; no output written"]
+    assert took < 3.0, f"the write went on for {took:.1f} s after the signal"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.toml", "stepped.py"]

@@ -1,17 +1,36 @@
-"""Spec files that are valid: nesting, spectral sampling, grids, paths."""
+"""Spec files that are valid: nesting, spectral sampling, grids, paths, a byte-order mark."""
+
+import json
+from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 import brdftab
+from brdftab.cli import main
 from brdftab.pipeline import run
 from brdftab.spec import load_spec
+
+TINY_GRID = '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 3\nn_theta_d = 3\nn_phi_d = 4\n'
 
 
 def write(tmp_path, text, name="s.toml"):
     p = tmp_path / name
     p.write_text(text)
     return p
+
+
+def _spec(folder: Path, output: str = "out.nc", name: str = "s.toml") -> Path:
+    path = folder / name
+    path.write_text(f'[model]\nname = "lambert"\nalbedo = 0.5\n{TINY_GRID}[[output]]\npath = "{output}"\n')
+    return path
+
+
+def _cli(*args):
+    result = CliRunner().invoke(main, [str(a) for a in args])
+    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
+    return result
 
 
 def test_sum_of_terms_and_scale(tmp_path):
@@ -135,3 +154,14 @@ def test_angle_parameters_in_degrees():
             build_model({"name": "tilted-test", "tilt": 0.5}, "model", "x.toml")
     finally:
         del models.MODELS["tilted-test"]
+
+
+def test_utf8_bom_is_accepted(tmp_path):
+    spec = _spec(tmp_path, output="bom.nc")
+    spec.write_bytes(b"\xef\xbb\xbf" + spec.read_bytes())
+    result = _cli("eval", spec, "--wi-deg", "30,0", "--wo-deg", "30,180", "--json")
+    assert result.exit_code == 0, result.stderr
+    assert json.loads(result.stdout)["channels"]["mono"] == pytest.approx(0.5 / np.pi)
+    result = _cli("tabulate", spec)
+    assert result.exit_code == 0, result.stderr
+    assert (tmp_path / "bom.nc").is_file()

@@ -254,6 +254,19 @@ def test_spec_error_same_for_every_verb_reading_specs(tmp_path, verb):
     _assert_one_error_line(result.stderr, result.exit_code, spec.name, "model.alpah", "did you mean 'alpha'")
 
 
+@pytest.mark.parametrize("text", [
+    "description = " + "[" * 2000 + "]" * 2000 + "\n",           # deeper than the TOML parser recurses
+    "description = " + "[" * 100 + "]" * 100 + "\n",             # parsed, but deeper than any spec needs
+    "".join(f"[model{'.term' * i}]\nname = 'scale'\nfactor = 1\n" for i in range(120)),
+], ids=["arrays-2000", "arrays-100", "models-120"])
+def test_deeply_nested_spec_is_one_clear_line(tmp_path, text):
+    spec = tmp_path / "deep.toml"
+    spec.write_text(text)
+    proc = _subprocess(["tabulate", spec])
+    line = _assert_one_error_line(proc.stderr, proc.returncode, "deep.toml", "nested too deeply")
+    assert "internal error" not in line
+
+
 # --------------------------------------------------------------------------------------------
 # Errors in command-line arguments that brdftab itself checks.
 
@@ -324,3 +337,28 @@ def test_tabulate_out_folder_missing_is_created(tmp_path):
     result = _cli(["tabulate", GGX_GOLD, "--out", missing])
     assert result.exit_code == 0, result.stderr
     assert sorted(p.name for p in missing.iterdir()) == ["ggx-gold.nc"]
+
+
+# --------------------------------------------------------------------------------------------
+# click usage errors are one line with exit code 2
+
+@pytest.mark.parametrize("args, expected", [
+    (["eval", GGX_GOLD, "--wi-deg", "30,0"], ["--wo-deg"]),                                   # missing option
+    (["eval", SPECS, "--wi-deg", "30,0", "--wo-deg", "30,180"], ["is a directory"]),         # folder as spec
+    (["tabulate", SPECS], ["is a directory"]),
+    (["eval", GGX_GOLD, "--wi-deg", "30,0", "--wo-deg", "30,180", "--wavelength-nm", "abc"],
+     ["--wavelength-nm", "abc"]),                                                            # not a number
+    (["tabulate", GGX_GOLD, "--no-such-option"], ["--no-such-option"]),
+    (["nosuchverb"], ["nosuchverb"]),
+    (["tabulate"], ["SPEC"]),
+])
+def test_usage_errors_are_one_line(args, expected):
+    result = _cli(args)
+    _assert_one_error_line(result.stderr, result.exit_code, *expected)
+    assert result.stdout == ""
+
+
+def test_usage_error_subprocess():
+    proc = _subprocess(["eval", GGX_GOLD, "--wi-deg", "30,0"])
+    _assert_one_error_line(proc.stderr, proc.returncode, "--wo-deg")
+    assert proc.stdout == ""

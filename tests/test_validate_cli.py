@@ -151,6 +151,18 @@ def test_thresholds_defaults_then_spec_then_command_line(tmp_path):
     assert r.exit_code == 1 and status_lines(r.stdout)["albedo"] == "FAIL"
 
 
+def test_cli_expected_albedo_replaces_the_spec_pair(tmp_path):
+    spec = tmp_path / "l.toml"
+    spec.write_text('[model]\nname = "lambert"\nalbedo = 0.8\n[grid]\ntype = "rusinkiewicz"\nn_theta_h = 8\n'
+                    'n_theta_d = 8\nn_phi_d = 16\n[[output]]\npath = "l.nc"\n[validation.albedo]\n'
+                    'expected = [0.8, 0.79]\nexpected_theta_i_deg = [0, 60]\n')
+    run = lambda *a: subprocess.run([sys.executable, "-m", "brdftab", "validate", str(spec), *a],  # noqa: E731
+                                    capture_output=True, text=True)
+    assert run().returncode == 0
+    p = run("--set", "albedo.expected=0.7")
+    assert p.returncode == 1 and "FAIL  albedo" in p.stdout and "every θi" in p.stdout, p.stdout + p.stderr
+
+
 def test_tabulate_refuses_an_invalid_model_and_writes_it_with_allow_invalid(tmp_path):
     spec = tmp_path / "bright.toml"
     spec.write_text(BAD_SPEC)

@@ -1,0 +1,46 @@
+"""Declared model parameters (brdftab.params) and the values they accept: numpy scalars and
+arrays accepted, complex and non-finite values refused, spectral terms kept to their common
+wavelength range; the module itself imports nothing of brdftab's models."""
+
+import ast
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from brdftab import models
+from brdftab.errors import ParameterError
+from brdftab.geometry import sph_to_vec
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_params_module_imports_nothing_of_brdf():
+    tree = ast.parse((ROOT / "brdftab" / "params.py").read_text())
+    names = [a.name for n in ast.walk(tree) if isinstance(n, ast.Import) for a in n.names]
+    names += [n.module or "" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)]
+    assert not [n for n in names if "brdf" in n.split(".")[-1] and n != "brdftab"], names
+
+
+@pytest.mark.parametrize("albedo", [np.array(0.5), np.float32(0.5), np.array([0.5])])
+def test_numpy_values_are_accepted(albedo):
+    assert models.create("lambert", albedo=albedo).eval(sph_to_vec(0.1, 0), sph_to_vec(0.2, 1))[0] == \
+        pytest.approx(0.5 / np.pi)
+
+
+@pytest.mark.parametrize("albedo", [np.complex128(0.5), [0.5, float("nan")], {"wavelengths_nm": [400, float("inf")],
+                                                                           "values": [0.1, 0.2]}])
+def test_bad_values_are_refused(albedo):
+    with pytest.raises(ParameterError):
+        models.create("lambert", albedo=albedo)
+
+
+def test_spectral_terms_keep_their_common_range():
+    m = models.create("microfacet", alpha=0.3, fresnel="conductor",
+                      n={"wavelengths_nm": [400, 550, 700], "values": [1.0, 1.1, 1.2]},
+                      k={"wavelengths_nm": [300, 800], "values": [2.0, 2.0]})
+    assert list(m.wavelengths) == [400, 550, 700]
+    with pytest.raises(ParameterError):
+        models.create("microfacet", alpha=0.3, fresnel="conductor",
+                      n={"wavelengths_nm": [400, 500], "values": [1.0, 1.0]},
+                      k={"wavelengths_nm": [600, 700], "values": [2.0, 2.0]})
