@@ -18,6 +18,7 @@ from brdftab import _atomic, formats
 from brdftab.cli import main
 from brdftab.grids import RusinkiewiczGrid
 from brdftab.table import tabulate
+from _cli import cli as _cli, one_error as _one_error, names as _names
 
 TINY_GRID = '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 3\nn_theta_d = 3\nn_phi_d = 4\n'
 
@@ -26,27 +27,6 @@ def _spec(folder: Path, output: str = "out.nc", name: str = "s.toml") -> Path:
     path = folder / name
     path.write_text(f'[model]\nname = "lambert"\nalbedo = 0.5\n{TINY_GRID}[[output]]\npath = "{output}"\n')
     return path
-
-
-def _cli(*args):
-    result = CliRunner().invoke(main, [str(a) for a in args])
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    return result
-
-
-def _one_error(stderr: str, code: int, *expected) -> str:
-    assert code == 2, f"exit code {code}, stderr {stderr!r}"
-    assert "Traceback" not in stderr, stderr
-    lines = stderr.splitlines()
-    assert len(lines) == 1, f"expected one line on stderr, got {stderr!r}"
-    assert lines[0].startswith("brdftab: error: "), lines[0]
-    for text in expected:
-        assert text in lines[0], f"{text!r} missing from {lines[0]!r}"
-    return lines[0]
-
-
-def _names(folder: Path) -> list:
-    return sorted(p.name for p in folder.iterdir())
 
 
 def _full_disk_error(result, target: Path) -> str:

@@ -28,6 +28,7 @@ from brdftab import models
 from brdftab.cli import main
 from brdftab.errors import BrdftabError, ParameterError
 from brdftab.grids import GRIDS, merl_grid
+from _cli import TINY_GRID, run as _run, cli as _cli, partials as _partials, spec as _spec, one_error as _one_error
 
 SPECS = Path(__file__).resolve().parent.parent / "specs"
 GGX_GOLD = SPECS / "ggx-gold.toml"
@@ -36,44 +37,10 @@ LAMBERT_WHITE = SPECS / "lambert-white.toml"
 WI_DEG = (30.0, 0.0)
 WO_DEG = (30.0, 180.0)
 
-TINY_GRID = '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 3\nn_theta_d = 3\nn_phi_d = 4\n'
-
-
-def _run(*args, cwd=None, timeout=120):
-    return subprocess.run([sys.executable, "-m", "brdftab", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=timeout)
-
-
-def _cli(*args):
-    result = CliRunner().invoke(main, [str(a) for a in args])
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    return result
-
 
 def _vec(theta_deg, phi_deg):
     t, p = math.radians(theta_deg), math.radians(phi_deg)
     return np.array([math.sin(t) * math.cos(p), math.sin(t) * math.sin(p), math.cos(t)])
-
-
-def _partials(folder: Path):
-    return sorted(p.name for p in folder.iterdir() if ".partial-" in p.name)
-
-
-def _spec(folder: Path, output: str = "out.nc", name: str = "s.toml") -> Path:
-    path = folder / name
-    path.write_text(f'[model]\nname = "lambert"\nalbedo = 0.5\n{TINY_GRID}[[output]]\npath = "{output}"\n')
-    return path
-
-
-def _one_error(stderr: str, code: int, *expected) -> str:
-    assert code == 2, f"exit code {code}, stderr {stderr!r}"
-    assert "Traceback" not in stderr, stderr
-    lines = stderr.splitlines()
-    assert len(lines) == 1, f"expected one line on stderr, got {stderr!r}"
-    assert lines[0].startswith("brdftab: error: "), lines[0]
-    for text in expected:
-        assert text in lines[0], f"{text!r} missing from {lines[0]!r}"
-    return lines[0]
 
 
 @pytest.fixture(scope="module")

@@ -29,6 +29,7 @@ from brdftab.errors import BrdftabError
 from brdftab.grids import RusinkiewiczGrid
 from brdftab.pipeline import run
 from brdftab.spec import Output, Spec, load_spec
+from _cli import one_error as _error_line, names as _names
 
 TINY_GRID = '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 3\nn_theta_d = 3\nn_phi_d = 4\n'
 GGX = models.create("microfacet", alpha=0.3)
@@ -60,22 +61,6 @@ def _one_error(result, *expected) -> str:
     for text in expected:
         assert text in lines[0], f"{text!r} missing from {lines[0]!r}"
     return lines[0]
-
-
-def _error_line(stderr: str, code: int, *expected) -> str:
-    """The one error line (exit code 2, no traceback) of a subprocess or a CliRunner result."""
-    assert code == 2, f"exit code {code}, stderr {stderr!r}"
-    assert "Traceback" not in stderr, stderr
-    lines = stderr.splitlines()
-    assert len(lines) == 1, f"expected one line on stderr, got {stderr!r}"
-    assert lines[0].startswith("brdftab: error: "), lines[0]
-    for text in expected:
-        assert text in lines[0], f"{text!r} missing from {lines[0]!r}"
-    return lines[0]
-
-
-def _names(folder: Path) -> list:
-    return sorted(p.name for p in folder.iterdir())
 
 
 def _must_not_tabulate(*args, **kwargs):

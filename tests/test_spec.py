@@ -11,26 +11,13 @@ import brdftab
 from brdftab.cli import main
 from brdftab.pipeline import run
 from brdftab.spec import load_spec
-
-TINY_GRID = '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 3\nn_theta_d = 3\nn_phi_d = 4\n'
+from _cli import TINY_GRID, spec as _spec, cli as _cli
 
 
 def write(tmp_path, text, name="s.toml"):
     p = tmp_path / name
     p.write_text(text)
     return p
-
-
-def _spec(folder: Path, output: str = "out.nc", name: str = "s.toml") -> Path:
-    path = folder / name
-    path.write_text(f'[model]\nname = "lambert"\nalbedo = 0.5\n{TINY_GRID}[[output]]\npath = "{output}"\n')
-    return path
-
-
-def _cli(*args):
-    result = CliRunner().invoke(main, [str(a) for a in args])
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    return result
 
 
 def test_sum_of_terms_and_scale(tmp_path):
