@@ -335,3 +335,22 @@ def test_shipped_spec_tabulates_and_validates_with_the_asymmetry_as_warn(tmp_pat
     assert all(c["status"] != "fail" for c in checks.values())
     # the table resolves the peaks at its incidence angles (the outgoing interpolation)
     assert checks["tabulation"]["data"]["rms_at_incidence_nodes"] < 0.2
+
+
+def test_bar_width_above_spacing_is_one_parameter_error():
+    from brdftab.errors import ParameterError
+    with pytest.raises(ParameterError, match="bar width must not exceed"):
+        models.create("small2021-diffraction", a=1e-5, b=1e-3)
+    with pytest.raises(ParameterError, match="bar width must not exceed"):
+        models.create("solar-cell-small2021", a=1e-5, b=1e-3)
+
+
+def test_absurd_weights_are_one_parameter_error():
+    # finite but absurd magnitudes overflowed to NaN at evaluation; they are refused up front
+    from brdftab.errors import ParameterError
+
+    for key in ("rho_s1", "rho_s2", "rho_s3"):
+        with pytest.raises(ParameterError, match=key):
+            models.create("solar-cell-small2021", **{key: 1e308})
+    with pytest.raises(ParameterError, match="g"):
+        models.create("torrance-sparrow-1967", rho_d=0.5, g=1e308)

@@ -45,6 +45,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..brdf import Model
+from ..errors import ParameterError
 from ..params import REQUIRED, Param
 from ..quadrature import gauss_legendre
 from . import components as C
@@ -60,7 +61,7 @@ def _peak_params(suffix="", m=REQUIRED, rho=REQUIRED, n=REQUIRED):
     return (
         Param(f"m{suffix}", "float", "Beckmann width m of the peak (rms slope).", default=m, minimum=1e-6,
               maximum=1.0),
-        Param(f"rho_s{suffix}", "channel", "Weight ρs of the peak.", default=rho, minimum=0.0),
+        Param(f"rho_s{suffix}", "channel", "Weight ρs of the peak.", default=rho, minimum=0.0, maximum=1e6),
         Param(f"n{suffix}", "channel", "Real part of the index n + ik inside Q.", default=n, minimum=0.0,
               exclusive_minimum=True),
         Param(f"k{suffix}", "channel", "Imaginary part k (>= 0) of the index inside Q.", default=0.0, minimum=0.0),
@@ -108,7 +109,7 @@ class Small2021Diffraction(Model):
         Param("c", "float", "Gaussian width c of the band across the bars (units of R).", default=4e-5,
               minimum=1e-9, maximum=10.0),
         Param("rho_s", "float", "Magnitude ρs3 of the pattern (its zeroth-order peak value, sr⁻¹).", default=300.0,
-              minimum=0.0),
+              minimum=0.0, maximum=1e6),
         Param("R", "float", "Radius R of Eq. 10 (units of c; 1: the unit sphere).", default=1.0, minimum=1e-6,
               maximum=1e3),
         Param("wavelength_nm", "float", "Wavelength λ of model.eval(wi, wo) without wavelengths.", units="nm",
@@ -120,6 +121,9 @@ class Small2021Diffraction(Model):
     isotropic = False
 
     def _setup(self, a, b, c, rho_s, R, wavelength_nm, phi_ref):
+        if b > a:
+            raise ParameterError("b", f"the bar width must not exceed the bar spacing a (b = {b:g} m > a = {a:g} m: "
+                                 "the two stripes would overlap)")
         self.a, self.b, self.c, self.rho_s, self.R = a, b, c, rho_s, R
         self.wavelength_nm = wavelength_nm
         self.phi_ref = phi_ref
@@ -216,7 +220,8 @@ def _solar_params():
         Param("tilt_azimuth", "float", "Δφ0: azimuth of that tilt, from +x towards +y.", units="rad",
               default=float(np.radians(45.0)), minimum=float(-2 * np.pi), maximum=float(2 * np.pi), angle=True),
         *(p for p in Small2021Diffraction.params if p.name != "rho_s"),
-        Param("rho_s3", "float", "Magnitude ρs3 of the diffraction pattern (sr⁻¹).", default=300.0, minimum=0.0),
+        Param("rho_s3", "float", "Magnitude ρs3 of the diffraction pattern (sr⁻¹).", default=300.0, minimum=0.0,
+              maximum=1e6),
         Param("rho_d", "channel", "Diffuse reflectance ρd of an optional Lambertian term ρd/π.", default=0.0,
               minimum=0.0, maximum=1.0),
     )

@@ -192,7 +192,7 @@ def _ts_params():
         Param("rho_d", "channel", "Diffuse reflectance ρd: the diffuse BRDF is ρd/π (Eq. 4's constant a).",
               minimum=0.0, maximum=1.0),
         Param("g", "float", "Specular-to-diffuse ratio g of Eq. 13 (0: diffuse only).", default=2.0 / 3.0,
-              minimum=0.0),
+              minimum=0.0, maximum=1e6),
         Param("c_per_deg", "float", "Slope constant c of exp(−c²α²), per degree of the facet angle α.",
               units="1/deg", default=0.05, minimum=1e-5, maximum=50.0),
         C.component_param("fresnel", "none", "Fresnel term F(ψ′) ('none' is F = 1, Fig. 8's material-free case)."),
