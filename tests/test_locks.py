@@ -19,17 +19,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 from _stepped import start_stepped, wait_for
-from click.testing import CliRunner
 
 import brdftab
 from brdftab import _locks, models
 from brdftab.brdf import BRDF
-from brdftab.cli import main
 from brdftab.errors import BrdftabError
 from brdftab.grids import RusinkiewiczGrid
 from brdftab.pipeline import run
 from brdftab.spec import Output, Spec, load_spec
-from _cli import one_error as _error_line, names as _names
+from _cli import cli as _cli, names as _names, one_error as _error_line, run as _run
 
 TINY_GRID = '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 3\nn_theta_d = 3\nn_phi_d = 4\n'
 GGX = models.create("microfacet", alpha=0.3)
@@ -41,17 +39,6 @@ def _spec(folder: Path, output: str = "out.nc", name: str = "s.toml", fmt: str =
     path.write_text(f'[model]\nname = "lambert"\nalbedo = 0.5\n{TINY_GRID}[[output]]\npath = "{output}"\n'
                     f"{fmt_line}")
     return path
-
-
-def _run(*args, cwd=None, timeout=120):
-    return subprocess.run([sys.executable, "-m", "brdftab", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=timeout)
-
-
-def _cli(*args):
-    result = CliRunner().invoke(main, [str(a) for a in args])
-    assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)
-    return result
 
 
 def _one_error(result, *expected) -> str:

@@ -136,6 +136,7 @@ from . import components as C
 from .combinators import Sum
 from .distributions import d_beckmann
 from ._registry import register
+from .microfacet import ComposedParams
 
 __all__ = ["THETA_P", "FACET_WEIGHT", "facet_normals", "visible_area", "PyramidDistribution", "PyramidShadowing",
            "PyramidMicrofacet", "Exits"]
@@ -862,16 +863,6 @@ def _albedo_rule(model, wi, single: bool, multi: bool, min_energy: float = 1e-12
 # The model
 
 
-class _Composed:
-    """Class attribute computed at each access (components registered later still appear)."""
-
-    def __init__(self, build):
-        self.build = build
-
-    def __get__(self, obj, cls):
-        return self.build()
-
-
 def _params():
     return (
         *PyramidDistribution.params,
@@ -892,7 +883,7 @@ class PyramidMicrofacet(Model):
     summary = ("Random upright pyramids (textured c-Si): pyramid microfacet term plus exit lobes of multiple "
                "bounces (de Haas 2024, corrected).")
     reference = "DeHaas2024; Heitz2016; Heitz2014; Beckmann1963"
-    params = _Composed(_params)
+    params = ComposedParams(_params)
     isotropic = False
     energy_conserving = True
 
