@@ -818,3 +818,45 @@ def test_albedo_of_an_rgl_file_is_mitsubas_own(tmp_path, which):
         worst = max(worst, float(np.max(np.abs(ours / theirs - 1))))
     print(f"{which}: brdftab's albedo vs Mitsuba's, θi ≤ 85°: max {100 * worst:.2f} %")
     assert worst < 0.005
+
+
+# -- report wording: figures defined, nothing passed that was not measured, stored = later --------
+
+def test_tabulation_defines_rms_and_max_and_explains_an_rms_above_the_max():
+    """The rms is over all points (L², weighted by the cosines), the max pointwise where the model
+    is significant: a narrow lobe smeared over coarse cells puts the error where the model is ~0,
+    so the rms exceeds the max — the report defines both and says why."""
+    lobe = models.create("sum", terms=[models.create("microfacet", alpha=0.005),
+                                       models.create("lambert", albedo=1e-4)])
+    grid = brdftab.grids.SphericalGrid(R([0, 30, 60]), [0.0], R(np.arange(0, 81, 10.0)), R(np.arange(0, 360, 10.0)))
+    t = outcome(brdftab.tabulate(lobe, grid, progress=False), "tabulation")
+    assert t.data["rms"] > t.data["max_relative"]
+    assert "(sqrt(Σ(t − m)²/Σm²) over all points)" in t.detail
+    assert "(pointwise |t − m|/m where m cosθi cosθo ≥ 1e-3 of its peak)" in t.detail
+    assert "the rms exceeds the max because the error lies where the model is below 1e-3 of its peak" in t.detail
+    fine = outcome(brdftab.tabulate(models.create("lambert", albedo=0.5), RusinkiewiczGrid(6, 6, 6),
+                                    progress=False), "tabulation")
+    assert fine.data["rms"] <= fine.data["max_relative"] and "exceeds the max" not in fine.detail
+
+
+def test_isotropy_of_a_single_azimuth_table_is_skipped_not_passed():
+    grid = brdftab.grids.SphericalGrid(R([0, 30, 60]), [0.0], R(np.arange(0, 81, 10.0)), R(np.arange(0, 360, 30.0)))
+    table = brdftab.tabulate(models.create("lambert", albedo=0.5), grid, progress=False)
+    o = outcome(table, "isotropy")
+    assert o.status == "skip" and "cannot be measured" in o.detail
+
+
+def test_stored_report_of_a_conversion_is_what_a_later_validate_finds(tmp_path):
+    """The report a conversion stores in its output equals `brdftab validate` of that file."""
+    from _cli import run
+    from _measured import measured_bsdf
+
+    measured_bsdf(tmp_path / "m.bsdf", negatives=0)
+    grid = '{type = "rusinkiewicz", n_theta_h = 10, n_theta_d = 10, n_phi_d = 20, phi_d_fold = "none"}'
+    r = run("convert", tmp_path / "m.bsdf", tmp_path / "m.nc", "--grid", grid)
+    assert r.returncode == 0, r.stderr
+    stored = json.loads(brdftab.open(tmp_path / "m.nc").ds.attrs["validation_report"])
+    v = run("validate", tmp_path / "m.nc", "--json")
+    later = json.loads(v.stdout)["reports"][0]
+    assert later["counts"] == stored["counts"]
+    assert [(c["name"], c["status"]) for c in later["checks"]] == [(c["name"], c["status"]) for c in stored["checks"]]
