@@ -846,17 +846,26 @@ def test_isotropy_of_a_single_azimuth_table_is_skipped_not_passed():
     assert o.status == "skip" and "cannot be measured" in o.detail
 
 
-def test_stored_report_of_a_conversion_is_what_a_later_validate_finds(tmp_path):
-    """The report a conversion stores in its output equals `brdftab validate` of that file."""
+@pytest.mark.parametrize("source", ["measured-like.bsdf", "ggx.nc"])
+def test_stored_report_of_a_conversion_is_what_a_later_validate_finds(tmp_path, source):
+    """The report a conversion stores in its output equals `brdftab validate` of that file: a
+    measured file (no model to compare with) and a table of a model resampled onto another grid
+    (its nodes are interpolations, not samples of the model)."""
     from _cli import run
     from _measured import measured_bsdf
 
-    measured_bsdf(tmp_path / "m.bsdf", negatives=0)
-    grid = '{type = "rusinkiewicz", n_theta_h = 10, n_theta_d = 10, n_phi_d = 20, phi_d_fold = "none"}'
-    r = run("convert", tmp_path / "m.bsdf", tmp_path / "m.nc", "--grid", grid)
+    src = tmp_path / source
+    if source.endswith(".bsdf"):
+        measured_bsdf(src, negatives=0)
+        grid = '{type = "rusinkiewicz", n_theta_h = 10, n_theta_d = 10, n_phi_d = 20, phi_d_fold = "none"}'
+    else:
+        brdftab.save(brdftab.tabulate(models.create("microfacet", alpha=0.3), RusinkiewiczGrid(16, 16, 32),
+                                      progress=False), src)
+        grid = '{type = "rusinkiewicz", n_theta_h = 10, n_theta_d = 10, n_phi_d = 20}'
+    r = run("convert", src, tmp_path / "out.nc", "--grid", grid)
     assert r.returncode == 0, r.stderr
-    stored = json.loads(brdftab.open(tmp_path / "m.nc").ds.attrs["validation_report"])
-    v = run("validate", tmp_path / "m.nc", "--json")
+    stored = json.loads(brdftab.open(tmp_path / "out.nc").ds.attrs["validation_report"])
+    v = run("validate", tmp_path / "out.nc", "--json")
     later = json.loads(v.stdout)["reports"][0]
     assert later["counts"] == stored["counts"]
     assert [(c["name"], c["status"]) for c in later["checks"]] == [(c["name"], c["status"]) for c in stored["checks"]]

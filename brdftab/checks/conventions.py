@@ -132,7 +132,13 @@ class Conventions(Check):
                 problems.append(f"phi_d nodes span {np.degrees(pd[0]):.4g}..{np.degrees(pd[-1]):.4g}°, outside the "
                                 f"stored range of phi_d_fold = '{fold}' ([0, {np.degrees(length):g}"
                                 f"{')' if periodic else ']'})")
-        if model is not None:
+        resampled = str(t.ds.attrs.get("converted_from", "")) if hasattr(t, "ds") else ""
+        if model is not None and resampled:
+            # a table resampled from another: its nodes hold interpolations of that table, so
+            # their distance from the model measures the resampling, not a fold or a position
+            notes.append(f"resampled from {resampled}: its nodes hold interpolations of that table, not samples "
+                         f"of {model.name} (the tabulation check measures how far they are)")
+        elif model is not None:
             declared, other, names = _node_errors(ctx, model, seed)
             data["node_error"] = declared
             if declared is not None:
