@@ -404,6 +404,8 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
         else:
             if isinstance(checked, Table):
                 payload = checked  # the samples the file holds: written, stamped and checked
+                if resampled:  # a format that resamples by itself (MERL): say what it resampled
+                    checked.ds.attrs.setdefault("converted_from", source.name)
             if checked is table or checked is None:
                 report_out = report_in
             else:

@@ -530,3 +530,17 @@ def test_refusal_on_the_command_line_is_one_line(tmp_path):
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and "anisotropic" in lines[0] and "phi_h_average" in lines[0], result.output
     assert list(tmp_path.iterdir()) == [spec]
+
+
+def test_a_table_resampled_onto_the_merl_grid_is_not_judged_as_samples_of_its_model(tmp_path):
+    """Converting a table of a model to MERL resamples it: its bins hold interpolations of that
+    table, so the conventions check does not compare them node by node with the model (that
+    refused every such conversion); the output records what it was converted from."""
+    src = tmp_path / "ggx.nc"
+    brdftab.save(tabulate(models.create("microfacet", alpha=0.3), RusinkiewiczGrid(16, 16, 32), progress=False), src)
+    from brdftab.convert import convert
+
+    result = convert(src, tmp_path / "ggx.binary")
+    c = result.report.get("conventions")
+    assert c.status == "pass" and "resampled from ggx.nc" in c.detail
+    assert result.written.ds.attrs["converted_from"] == "ggx.nc"
