@@ -134,9 +134,10 @@ def _coverage_note(ctx, c, min_coverage):
     cmin, at = float(per_theta[k]), float(np.degrees(c.theta_i[k]))
     if cmin >= 1.0 - 1e-9:
         return cmin, at, "", False
-    if _missing_data(ctx):
-        note = (f"; missing samples and directions outside the table left out: the integrals cover "
-                f"{100 * cmin:.3g} % of the projected solid angle at θi = {at:.4g}° (the least)")
+    if _missing_data(ctx) or not ctx.is_table:
+        what = "missing samples and directions outside the table" if ctx.is_table else "directions it does not define"
+        note = (f"; {what} left out: the integrals cover {100 * cmin:.3g} % of the projected solid angle at "
+                f"θi = {at:.4g}° (the least)")
     else:
         note = (f"; nothing is missing, but the table's grid covers only {100 * cmin:.3g} % of the projected "
                 f"solid angle at θi = {at:.4g}° (the least): the integrals are over that part")
