@@ -42,7 +42,6 @@ from . import formats
 from ._locks import check_target, claim
 from ._progress import write_progress
 from ._signals import terminate_as_interrupt
-from .brdf import BRDF
 from .models.combinators import Average
 from .errors import BrdftabError, ParameterError, ValidationError
 from .grids import Grid
@@ -392,12 +391,26 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
         else:
             with formats.naming(target):
                 payload = formats.prepare(fmt, brdf, out_grid, options)
-        # validate what is written (a copy is the input itself: its report is the output's)
-        checked = payload if isinstance(payload, BRDF) else getattr(payload, "bsdf", None)
-        if checked is table or checked is None:
-            report_out = report_in
+        # validate what is written, as the file stores it (a copy is the input itself: its
+        # report is the output's)
+        from .table import Table
+
+        try:
+            checked = formats.stored(fmt, payload, options)
+        except formats.NotStorable as exc:
+            from .checks import unstorable_report
+
+            checked, report_out = exc, unstorable_report(exc, checks, allow_invalid=True)
         else:
-            report_out = _run_checks(checked, checks, origin, reference=brdf)
+            if isinstance(checked, Table):
+                payload = checked  # the samples the file holds: written, stamped and checked
+            if checked is table or checked is None:
+                report_out = report_in
+            else:
+                # judged against what the output's own provenance names, as a later `brdftab
+                # validate` of the file judges it (its report is the one stored in the file);
+                # how far the output is from the input is the Difference below
+                report_out = _run_checks(checked, checks, origin)
         if hasattr(payload, "ds"):
             from .checks import stamp
 

@@ -88,3 +88,71 @@ def test_each_output_tabulates_the_model_on_its_own_grid(tmp_path, merl_grid_for
     assert np.allclose(stored, expected, rtol=1e-12, atol=0)
     rus = brdftab.open(tmp_path / "rus.nc")
     assert rus.grid.shape == (30, 30, 60)
+
+
+# -- checks judge the values as stored -------------------------------------------------------------
+
+#: A model whose values are finite in float64 but beyond float32's range above the horizon.
+BEYOND_FLOAT32 = ('[model]\nname = "scale"\nfactor = 2e40\n[model.term]\nname = "lambert"\nalbedo = 0.5\n'
+                  '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 6\nn_theta_d = 5\nn_phi_d = 8\n'
+                  '[validation.energy]\nlevel = "off"\n')
+
+
+def _beyond_float32(tmp_path, output):
+    path = tmp_path / "big.toml"
+    path.write_text(BEYOND_FLOAT32 + f"[[output]]\n{output}\n")
+    return path
+
+
+def _overflowing_samples(spec_path):
+    """How many samples of the spec's model at its grid nodes exceed the largest float32 (float64 values)."""
+    from brdftab.table import tabulate
+
+    s = load_spec(spec_path)
+    v = np.asarray(tabulate(s.model, s.grid).values, np.float64)
+    return int(np.count_nonzero(np.abs(v) > np.finfo(np.float32).max)), v.size
+
+
+@pytest.mark.parametrize("output", ['path = "big.nc"\ndtype = "float32"', 'path = "big.exr"',
+                                    'path = "big.bsdf"\nresolution = 8\ntheta_i_deg = [0, 40, 80]'],
+                         ids=["netcdf-float32", "exr", "rgl"])
+def test_values_beyond_the_storage_type_fail_finite_and_nothing_is_written(tmp_path, output):
+    from _cli import run as cli_run
+
+    spec = _beyond_float32(tmp_path, output)
+    r = cli_run("tabulate", spec)
+    assert r.returncode == 1, r.stderr
+    error = [line for line in r.stderr.splitlines() if line.startswith("brdftab: error:")]
+    assert len(error) == 1 and "refusing to export" in error[0] and "finite:" in error[0], r.stderr
+    assert "float32" in error[0]
+    if "bsdf" not in output:  # a table: every sample beyond float32 is counted
+        over, total = _overflowing_samples(spec)
+        assert over > 0
+        assert f"finite: {over} of {total} samples are NaN or infinite (0 NaN, {over} infinite)" in error[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.toml"]
+
+
+def test_float64_output_of_the_same_values_passes(tmp_path):
+    result = run(load_spec(_beyond_float32(tmp_path, 'path = "big.nc"')), progress=False)
+    assert result.report.passed and result.report.get("finite").status == "pass"
+    assert np.isfinite(brdftab.open(tmp_path / "big.nc").values).all()
+
+
+def test_written_anyway_the_file_records_the_failure_a_later_validate_finds(tmp_path):
+    import json
+
+    from _cli import run as cli_run
+
+    spec = _beyond_float32(tmp_path, 'path = "big.nc"\ndtype = "float32"')
+    r = cli_run("tabulate", spec, "--allow-invalid")
+    assert r.returncode == 0, r.stderr
+    attrs = brdftab.open(tmp_path / "big.nc").ds.attrs
+    assert attrs["validation_passed"] == 0 and attrs["validation_summary"].startswith("finite: ")
+    stored = json.loads(attrs["validation_report"])
+    over, _ = _overflowing_samples(spec)
+    assert stored["checks"][0]["name"] == "finite" and stored["checks"][0]["figure"] == over
+    v = cli_run("validate", tmp_path / "big.nc", "--level", "energy=off", "--json")
+    assert v.returncode == 1
+    later = json.loads(v.stdout)["reports"][0]
+    assert later["counts"] == stored["counts"]
+    assert {c["name"]: c["status"] for c in later["checks"]} == {c["name"]: c["status"] for c in stored["checks"]}

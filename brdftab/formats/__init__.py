@@ -20,6 +20,13 @@ turns any BRDF into what ``write`` takes. The default reuses a :class:`~brdftab.
 whose grid equals the target grid (values copied, never resampled) and otherwise tabulates
 the BRDF on the target grid. A format that needs the model itself (the RGL ``.bsdf`` writer
 samples D and the VNDF) supplies its own ``prepare``.
+
+What is checked is what is stored: a format whose storage loses precision declares
+``stored(payload, **options)``, the BRDF a reader of the written file gets back (netCDF
+``dtype = "float32"`` and EXR round the samples to float32, values beyond its range becoming
+infinite; an RGL ``.bsdf`` is read through its float32 fields). :func:`stored` gives it, and
+the pipeline and ``convert`` run the checks on it — a value that is finite in float64 but not
+as stored is a ``finite`` failure. A format that stores the samples exactly declares nothing.
 """
 
 from __future__ import annotations
@@ -32,6 +39,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from .._atomic import atomic_path
 from .._locks import check_target
 from .._signals import held_signals
@@ -40,7 +49,7 @@ from ..params import parse_params, suggest
 from ..registry import Registry
 
 __all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "write_prepared", "format_for",
-           "target_grid", "prepare", "available", "naming"]
+           "target_grid", "prepare", "stored", "cast_samples", "NotStorable", "available", "naming"]
 
 #: Bytes of a file's head passed to ``magic`` and ``sniff`` (enough for the comment lines that
 #: start a Zemax ``.bsdf`` text file before its first keyword).
@@ -76,6 +85,10 @@ class FileFormat:
     #: Stated precision: the largest relative difference between what the writer wrote (the
     #: table, or its own sampling) and what the reader returns (the format contract tests it).
     precision: float = 0.0
+    #: ``stored(payload, **options) -> BRDF``: what a reader of the written file gets back (the
+    #: samples rounded to the storage type); a table it returns is also what is written. None:
+    #: the format stores the payload's samples exactly (see :func:`stored`).
+    stored: Callable | None = None
 
     @property
     def options(self) -> dict:
@@ -213,6 +226,58 @@ def _default_prepare(brdf, grid, **options):
 def prepare(fmt: FileFormat, brdf, grid, options: dict | None = None):
     """What ``fmt.write`` takes for ``brdf`` on ``grid`` (reusing a table already on it)."""
     return (fmt.prepare or _default_prepare)(brdf, grid, **dict(options or {}))
+
+
+class NotStorable(FormatError):
+    """What a format would store cannot be read back as a BRDF: ``count`` of ``total`` stored
+    values are NaN or infinite (``detail`` says which and where). The checks report it as a
+    ``finite`` failure of the output."""
+
+    def __init__(self, detail: str, count: int, total: int):
+        super().__init__(detail)
+        self.detail, self.count, self.total = detail, int(count), int(total)
+
+
+def stored(fmt: FileFormat, payload, options: dict | None = None):
+    """The BRDF a reader of the file ``fmt`` writes from ``payload`` gets back: the values as
+    stored, which is what the checks judge (``payload`` itself for a format that stores its
+    samples exactly; None when the payload is not a BRDF and the format says nothing). A
+    :class:`~brdftab.table.Table` returned is what :func:`write_prepared` should write (its
+    samples equal what the file will hold). Raises :class:`NotStorable` when the stored values
+    are not finite in a way no reader accepts."""
+    from ..brdf import BRDF
+
+    if fmt.stored is None:
+        return payload if isinstance(payload, BRDF) else None
+    return fmt.stored(payload, **dict(options or {}))
+
+
+def cast_samples(table, dtype):
+    """``table`` with its samples as a file of storage type ``dtype`` holds them: rounded to
+    ``dtype`` (values beyond its range become ±inf) and held in the table's own type. The table
+    itself when the cast changes nothing; the same copy for repeated calls (outputs of one
+    table in one storage type share their checks)."""
+    from ..table import Table
+
+    dtype = np.dtype(dtype)
+    var = table.ds["brdf"]
+    if np.can_cast(var.dtype, dtype, "safe"):
+        return table
+    cache = table.__dict__.setdefault("_stored_casts", {})
+    if dtype.str in cache:
+        return cache[dtype.str]
+    v = np.asarray(table.values)
+    with np.errstate(over="ignore", invalid="ignore"):
+        back = v.astype(dtype).astype(v.dtype)
+    out = table
+    if not np.array_equal(back, v, equal_nan=True):
+        ds = table.ds.copy(deep=False)
+        ds["brdf"] = var.copy(data=back)
+        out = Table(ds)
+        out.origin = table.origin
+        out.stored_dtype = dtype.name  # the checks say the values are judged as stored
+    cache[dtype.str] = out
+    return out
 
 
 def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool = False, **options):

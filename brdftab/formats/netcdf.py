@@ -22,7 +22,7 @@ import xarray as xr
 from .._progress import write_step
 from ..params import Param
 from ..errors import FormatError, ParameterError
-from . import FileFormat, register
+from . import FileFormat, cast_samples, register
 
 __all__ = ["read_netcdf", "write_netcdf"]
 
@@ -182,6 +182,11 @@ def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
                 write_step(done, total)
 
 
+def stored_netcdf(table, dtype: str = "float64", **_):
+    """The table as the file holds it: samples rounded to ``dtype`` (float32 overflows to inf)."""
+    return cast_samples(table, dtype)
+
+
 _FORMAT = register(FileFormat(
     name="netcdf",
     extensions=(".nc", ".nc4", ".netcdf"),
@@ -195,4 +200,5 @@ _FORMAT = register(FileFormat(
         Param("complevel", "int", "zlib compression level (0: none).", default=4, minimum=0, maximum=9),
     ),
     precision=1e-12,  # float64 samples (float32 when dtype = float32: 1e-6)
+    stored=stored_netcdf,
 ))
