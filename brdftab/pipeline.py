@@ -63,6 +63,7 @@ def plan(spec: Spec, out_dir=None) -> list:
     for o in spec.outputs:
         fmt = formats.format_for(o.path, o.format)
         fmt.ensure_available()
+        fmt.check_path(o.target(out_dir))
         with formats.naming(o.target(out_dir)):
             grid = formats.target_grid(fmt, spec.grid, o.options)
         out.append(Planned(o.target(out_dir), fmt, dict(o.options), grid))

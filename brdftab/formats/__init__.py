@@ -73,6 +73,10 @@ class FileFormat:
     prepare: Callable | None = None
     #: Rules between options that single declarations cannot say (one excludes another).
     check_options: Callable | None = None
+    #: True when the format's library opens files by UTF-8 names only (netCDF/HDF5, OpenEXR): a
+    #: path that is not valid UTF-8 (bytes such as 0xff in a name, as POSIX allows) is refused
+    #: up front (:meth:`check_path`) instead of failing inside the library after the work.
+    utf8_paths: bool = False
     #: Stated precision: the largest relative difference between what the writer wrote (the
     #: table, or its own sampling) and what the reader returns (the format contract tests it).
     precision: float = 0.0
@@ -100,6 +104,19 @@ class FileFormat:
         if miss:
             raise BrdftabError(f"format {self.name} needs the Python package {', '.join(miss)}, which is not "
                                f"installed (pip install {' '.join(miss)})")
+
+    def check_path(self, path) -> None:
+        """Refuse (one line) a path this format's library cannot open: not valid UTF-8."""
+        if not self.utf8_paths:
+            return
+        text = os.fspath(path)
+        try:
+            text.encode("utf-8") if isinstance(text, str) else text.decode("utf-8")
+        except UnicodeError:
+            shown = text.encode("utf-8", "surrogateescape") if isinstance(text, str) else text
+            raise BrdftabError(f"{shown.decode('utf-8', 'backslashreplace')}: the {self.name} library opens only paths "
+                               "that are valid UTF-8; rename the file or folder (MERL .binary and RGL .bsdf "
+                               "files take any name)") from None
 
     def validate_options(self, options: dict) -> dict:
         """The options checked against the declarations (unknown names with did-you-mean,
@@ -185,6 +202,7 @@ def read(path):
     """Read a table from ``path`` (any registered format)."""
     fmt = detect(path)
     fmt.ensure_available()
+    fmt.check_path(path)
     try:
         return fmt.read(Path(path))
     except BrdftabError as exc:
@@ -224,6 +242,7 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
     """
     fmt = format_for(path, format)
     fmt.ensure_available()
+    fmt.check_path(path)
     try:
         fmt.validate_options(options)
     except BrdftabError as exc:
@@ -264,6 +283,7 @@ def naming(path):
 
 def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, options: dict | None = None):
     """Write what :func:`prepare` returned to ``path`` atomically (no tabulation here)."""
+    fmt.check_path(path)
     with atomic_path(path, overwrite=overwrite) as tmp:
         with held_signals(writing=Path(path).name):
             fmt.write(payload, tmp, **dict(options or {}))

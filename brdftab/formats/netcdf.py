@@ -189,6 +189,7 @@ _FORMAT = register(FileFormat(
     read=read_netcdf,
     write=write_netcdf,
     magic=MAGIC,
+    utf8_paths=True,
     params=(
         Param("dtype", "choice", "Storage type of the samples (values are computed in float64).", default="float64",
               choices=("float64", "float32")),
