@@ -411,3 +411,18 @@ def test_netcdf_writer_reports_steps_and_writes_the_same_values(tmp_path, monkey
     with xr.open_dataset(tmp_path / "a.nc") as ds:
         assert ds["brdf"].dtype == np.float32 and ds["brdf"].attrs["units"] == "sr-1"
         assert "_FillValue" not in ds["brdf"].encoding or ds["brdf"].encoding["_FillValue"] is None
+
+
+def test_duplicate_channel_names_are_refused_on_read(tmp_path):
+    """Three channels all called R: which one would ``eval --json`` report? Refused, naming it."""
+    path = tmp_path / "rrr.nc"
+    brdftab.save(models.create("lambert", albedo=[0.2, 0.5, 0.8]), path, grid=RusinkiewiczGrid(3, 3, 4))
+    with netCDF4.Dataset(path, "a") as nc:
+        nc["channel_name"][:] = netCDF4.stringtochar(np.array(["R", "G", "R"], dtype="S1"))
+    with pytest.raises(FormatError, match=r"rrr.nc: .*duplicate channel name 'R' \(channels R, G, R\)"):
+        brdftab.open(path)
+    proc = subprocess.run([sys.executable, "-m", "brdftab", "eval", str(path), "--wi-deg", "10,0", "--wo-deg",
+                           "10,180", "--json"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == "", proc
+    assert proc.stderr.splitlines() == [f"brdftab: error: {path}: channels: duplicate channel name 'R' (channels R, "
+                                        "G, R): each channel needs its own name"]
