@@ -28,6 +28,7 @@ import contextlib
 import importlib
 import importlib.util
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -35,7 +36,7 @@ from typing import Callable
 from .._atomic import atomic_path
 from .._locks import check_target
 from .._signals import held_signals
-from ..errors import BrdftabError, FormatError, ParameterError
+from ..errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
 from ..params import parse_params, suggest
 from ..registry import Registry
 
@@ -264,8 +265,13 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
                            f"got {type(grid).__name__}")
 
     requested = grid if grid is not None else (brdf.grid if isinstance(brdf, Table) else None)
+    target = target_grid(fmt, requested, options)
+    if grid is not None and (target is None or not target.equals(grid)):
+        stored = f"its own grid, {target.describe()}" if target is not None else "its own sampling"
+        warnings.warn(f"{path}: the {fmt.name} format stores {stored}; the grid given ({grid.describe()}) is not used",
+                      BrdftabWarning, stacklevel=3)
     with naming(path):
-        payload = prepare(fmt, brdf, target_grid(fmt, requested, options), options)
+        payload = prepare(fmt, brdf, target, options)
     write_prepared(fmt, payload, path, overwrite=overwrite, options=options)
     return payload
 
