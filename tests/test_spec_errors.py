@@ -292,6 +292,8 @@ def test_deeply_nested_spec_is_one_clear_line(tmp_path, text):
 @pytest.mark.parametrize("value, expected", [
     ("30", ["--wi-deg", "'30'", "theta,phi"]),
     ("100,0", ["--wi-deg", "[0, 90]", "100"]),
+    ("90.0000001,0", ["--wi-deg", "[0, 90]", "got 90.0000001"]),
+    ("-1e-9,0", ["--wi-deg", "[0, 90]", "got -1e-9"]),
     ("a,b", ["--wi-deg", "'a,b'"]),
     ("30,0,0", ["--wi-deg", "'30,0,0'"]),
     ("nan,0", ["--wi-deg", "'nan,0'"]),
