@@ -330,6 +330,7 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
     options = dict(options or {})
     fmt = formats.format_for(target, format)
     fmt.ensure_available()
+    fmt.check_path(target)
     try:
         fmt.validate_options(options)
     except ParameterError as exc:

@@ -530,3 +530,20 @@ def test_refusal_on_the_command_line_is_one_line(tmp_path):
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and "anisotropic" in lines[0] and "phi_h_average" in lines[0], result.output
     assert list(tmp_path.iterdir()) == [spec]
+
+
+def test_a_grid_the_format_does_not_store_is_said_to_be_ignored(tmp_path):
+    """MERL has its own grid: ``save(..., grid=other)`` writes the MERL grid and says so."""
+    import warnings
+
+    from brdftab.errors import BrdftabWarning
+
+    lam = models.create("lambert", albedo=0.5)
+    with pytest.warns(BrdftabWarning, match=r"x.binary: the merl format stores its own grid, merl .*; the grid given "
+                                             r"\(rusinkiewicz theta_h\[4\] x theta_d\[4\] x phi_d\[8\]\) is not used"):
+        written = brdftab.save(lam, tmp_path / "x.binary", grid=RusinkiewiczGrid(4, 4, 8))
+    assert written.grid.equals(merl_grid())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the MERL grid itself, or no grid: nothing to say
+        brdftab.save(lam, tmp_path / "y.binary", grid="merl")
+        brdftab.save(lam, tmp_path / "z.binary")

@@ -440,3 +440,18 @@ def test_convert_to_float32_judges_the_stored_values(tmp_path):
     assert back.ds.attrs["validation_passed"] == 0 and np.isinf(back.values).sum() == over
     r = run("convert", src, tmp_path / "f64.nc", "--level", "energy=off")  # float64 holds them
     assert r.returncode == 0, r.stderr
+
+
+def test_duplicate_channel_names_are_refused_on_read(tmp_path):
+    """Three channels all called R: which one would ``eval --json`` report? Refused, naming it."""
+    path = tmp_path / "rrr.nc"
+    brdftab.save(models.create("lambert", albedo=[0.2, 0.5, 0.8]), path, grid=RusinkiewiczGrid(3, 3, 4))
+    with netCDF4.Dataset(path, "a") as nc:
+        nc["channel_name"][:] = netCDF4.stringtochar(np.array(["R", "G", "R"], dtype="S1"))
+    with pytest.raises(FormatError, match=r"rrr.nc: .*duplicate channel name 'R' \(channels R, G, R\)"):
+        brdftab.open(path)
+    proc = subprocess.run([sys.executable, "-m", "brdftab", "eval", str(path), "--wi-deg", "10,0", "--wo-deg",
+                           "10,180", "--json"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == "", proc
+    assert proc.stderr.splitlines() == [f"brdftab: error: {path}: channels: duplicate channel name 'R' (channels R, "
+                                        "G, R): each channel needs its own name"]

@@ -379,6 +379,12 @@ BAD_ROWS = [
     ("1, 1, 1, 1, 1, 0, 0, 0.5", "n - l = 1 - 0 is odd"),          # 11: column 5 (k = 1) is not used
     ("1, 2, 2, 1, 1, 1, 0, 0.5", "n - k = 2 - 1 is odd"),          # off 11: column 5 with column 3
     ("1, 2, 1, 2, 1, 1, 0, 0.5", "m - l = 2 - 1 is odd"),          # off 11: column 6 with column 4
+    # orders beyond the documented limit: refused on reading, not tens of GB at evaluation
+    ("1, 1, 20000, 20000, 0, 0, 0, 0.5", "orders above 100 are not supported (n = 20000, m = 20000"),
+    ("1, 1, 0, 0, 0, 102, 0, 0.5", "orders above 100 are not supported (l = 102"),
+    pytest.param("1, 1, " + "2" * 400 + ", 0, 0, 0, 0, 0.5",
+                 "orders above 100 are not supported (n = 22222222... (400 digits)", id="order-of-400-digits"),
+    ("1, 1, 0, 0, 0, 0, 17, 0.5", "power of the wavelength p must lie in -16..16, got 17"),
 ]
 
 

@@ -48,6 +48,8 @@ def read_netcdf(path):
                 var.attrs["unwritten_value"] = np.asarray(fill, var.dtype)
     try:
         return Table(ds)
+    except ParameterError as exc:  # a value the file holds, named (e.g. a duplicate channel name)
+        raise FormatError(f"{path}: {exc}") from None
     except (KeyError, ValueError, TypeError, IndexError) as exc:
         raise FormatError(f"{path}: not a brdftab table ({_first_line(exc)})") from None
 
@@ -194,6 +196,7 @@ _FORMAT = register(FileFormat(
     read=read_netcdf,
     write=write_netcdf,
     magic=MAGIC,
+    utf8_paths=True,
     params=(
         Param("dtype", "choice", "Storage type of the samples (values are computed in float64).", default="float64",
               choices=("float64", "float32")),
