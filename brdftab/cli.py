@@ -206,8 +206,28 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, levels, settings, progress
                 else f"channel{'s' if len(t.channels) > 1 else ''} {', '.join(t.channels)}")
         grid = getattr(t, "grid", None)
         click.echo(f"wrote {path} ({grid.describe() if grid is not None else 'its own grid'}, {what})")
-    if not result.report.passed:
-        click.echo(f"brdftab: warning: written despite failed checks: {result.report.summary()}", err=True)
+    # what the checks found in what was written: one line per report (outputs sharing a table share one)
+    for report, paths in _reports_of(result):
+        names = ", ".join(str(p) for p in paths)
+        if report.failures:
+            click.echo(f"brdftab: warning: {names} written despite failed checks: {report.summary()}", err=True)
+        elif report.warnings:
+            n = len(report.warnings)
+            click.echo(f"brdftab: warning: {names} written with {n} warning{'s' if n > 1 else ''}: "
+                       + "; ".join(f"{o.name}: {_one_line(o.detail)}" for o in report.warnings), err=True)
+
+
+def _reports_of(result) -> list:
+    """[(report, [paths written with it])] in the order written."""
+    out = []
+    for path, report in zip(result.written, result.reports):
+        for r, paths in out:
+            if r is report:
+                paths.append(path)
+                break
+        else:
+            out.append((report, [path]))
+    return out
 
 
 def _format_names_lazy() -> str:

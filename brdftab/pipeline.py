@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 from . import formats
 from ._locks import check_target, claim, same_file
-from ._progress import write_progress
+from ._progress import check_progress, write_progress
 from ._signals import terminate_as_interrupt
 from .brdf import BRDF
 from .checks import Report, guard
@@ -137,10 +137,12 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
             # φh average or symmetrization): then the table's provenance names what it holds
             made_from = getattr(checked, "ds", None)
             derived = made_from is not None and made_from.attrs.get("model") != spec.model.name
-            reports[key] = guard(checked, layers, allow_invalid=allow, what=where,
-                                 reference=None if derived else spec.model,
-                                 wavelengths=spec.wavelengths,
-                                 subject=f"{spec.path.name} on {grid.describe() if grid is not None else 'its own grid'}")
+            label = ", ".join(j[0].target.name for j in jobs if j[3] is checked)
+            with check_progress(label, progress, _progress_delay(started)):
+                reports[key] = guard(checked, layers, allow_invalid=allow, what=where,
+                                     reference=None if derived else spec.model, wavelengths=spec.wavelengths,
+                                     subject=f"{spec.path.name} on "
+                                             f"{grid.describe() if grid is not None else 'its own grid'}")
         for m, options, payload, checked in jobs:
             with write_progress(m.target.name, progress, _progress_delay(started)):
                 formats.write_prepared(m.format, payload, m.target, overwrite=overwrite, options=options)

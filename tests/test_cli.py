@@ -178,6 +178,35 @@ def test_progress_bar_covers_the_write(tmp_path, monkeypatch):
     assert result.exit_code == 0 and result.stderr == ""
 
 
+def test_progress_bar_covers_the_checks(tmp_path, monkeypatch):
+    """Between tabulating and writing, the checks of what is written run under a bar of their own."""
+    from brdftab import table as table_module
+
+    monkeypatch.setattr(table_module, "PROGRESS_DELAY", 0.0)
+    result = _cli("tabulate", _spec(tmp_path, output="x.nc"), "--progress")
+    assert result.exit_code == 0, result.stderr
+    err = result.stderr
+    assert "checking x.nc" in err
+    assert err.index("tabulating") < err.index("checking x.nc") < err.index("writing x.nc")
+
+
+def test_tabulate_says_when_what_it_wrote_has_warnings(tmp_path):
+    """A check that WARNs does not stop the export, but the run says so on stderr (not only 'wrote')."""
+    spec = tmp_path / "s.toml"
+    spec.write_text(f'[model]\nname = "lambert"\nalbedo = 0.5\n{TINY_GRID}[[output]]\npath = "a.nc"\n'
+                    '[[output]]\npath = "b.nc"\n')
+    result = _cli("tabulate", spec, "--set", "albedo.expected=0.8", "--level", "albedo=warn",
+                  "--level", "bilateral=warn", "--no-progress")
+    assert result.exit_code == 0, result.stderr
+    assert result.stdout.count("wrote ") == 2
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, lines  # the two outputs share one table, hence one report
+    assert lines[0].startswith("brdftab: warning: ") and f"{tmp_path / 'a.nc'}, {tmp_path / 'b.nc'} written with 1 warning: albedo: " in lines[0]
+    assert "differs from the expected" in lines[0]
+    result = _cli("tabulate", spec, "--overwrite", "--no-progress")  # nothing to say
+    assert result.exit_code == 0 and result.stderr == ""
+
+
 # --------------------------------------------------------------------------------------------
 # An interrupted or killed run leaves no partial output
 
