@@ -418,6 +418,7 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
             stamp(payload, report_out)  # validation_passed: the output passed (or 0, written with --allow-invalid)
             if report_out is not report_in:
                 _stamp_input(payload, report_in, source)
+            _stamp_provenance(payload, table, source, target, out_grid if resampled else None)
         if not report_out.passed and not allow_invalid:
             raise InvalidOutput(_refusal(report_out, source, target))
         with write_progress(target.name, progress, _delay(started)):
@@ -449,6 +450,36 @@ def _stamp_input(table, report, source) -> None:
         f"{o.status.upper()} {o.name}: {o.detail}" for o in report.outcomes if o.status in ("fail", "warn")) \
         if (report.failures or report.warnings) else f"{source.name}: {report.summary()}"
     attrs["input_validation_report"] = json.dumps(report.to_json(), separators=(",", ":"))
+
+
+def _stamp_provenance(payload, table, source: Path, target: Path, grid) -> None:
+    """What the output records of where it came from: the source file's name and SHA-256
+    (``converted_from``, ``converted_from_sha256``) and its ``history``: the source's steps,
+    then this conversion (a convert of a convert keeps every step). ``grid``: the grid it was
+    resampled onto (None: copied)."""
+    import datetime as _dt
+    import hashlib
+
+    from ._signals import checkpoint
+    from ._version import __version__
+
+    digest = hashlib.sha256()
+    with open(source, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 22), b""):
+            digest.update(block)
+            checkpoint()
+    attrs = payload.ds.attrs
+    before = getattr(table, "ds", None)
+    steps = str(before.attrs.get("history", "") if before is not None else "").strip()
+    now = _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
+    how = f"resampled onto {grid.describe()}" if grid is not None else "copied"
+    step = f"{now} brdftab {__version__}: converted {source.name} (sha256 {digest.hexdigest()}) to {target.name}, {how}"
+    attrs["converted_from"] = source.name
+    attrs["converted_from_sha256"] = digest.hexdigest()
+    attrs["history"] = f"{steps}\n{step}" if steps else step
+    if "created" not in attrs:  # a source that records no table of its own (a MERL file): made now
+        attrs["created"] = now
+        attrs["brdftab_version"] = __version__
 
 
 def _delay(started: float) -> float:

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 from . import formats
 from ._locks import check_target, claim, same_file
-from ._progress import write_progress
+from ._progress import check_progress, write_progress
 from ._signals import terminate_as_interrupt
 from .brdf import BRDF
 from .checks import Report, guard
@@ -124,7 +124,10 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
             if job.key in reports:
                 continue
             where = ", ".join(str(j.planned.target) for j in jobs if j.key == job.key)
-            reports[job.key] = job.check(spec, layers, subject=_subject(spec, job), allow_invalid=allow, what=where)
+            label = ", ".join(j.planned.target.name for j in jobs if j.key == job.key)
+            with check_progress(label, progress, _progress_delay(started)):
+                reports[job.key] = job.check(spec, layers, subject=_subject(spec, job), allow_invalid=allow,
+                                             what=where)
         for job in jobs:
             m = job.planned
             with write_progress(m.target.name, progress, _progress_delay(started)):

@@ -249,7 +249,8 @@ class Table(BRDF):
         """Bool mask of missing samples (shape of :attr:`values`), or None when there are none.
 
         A sample is missing when it lies below the ``valid_min`` or above the ``valid_max``
-        attribute of the ``brdf`` variable (CF); e.g. MERL's negative "no data" markers.
+        attribute of the ``brdf`` variable (CF), e.g. MERL's negative "no data" markers, or
+        equals one of its ``missing_value`` markers (a netCDF file's ``_FillValue`` too).
         """
         if self._missing is False:
             self._missing = _missing_mask(self.values, self._var.attrs)
@@ -591,7 +592,8 @@ def _data_nodes(grid, values, valid):
 
 
 def _missing_mask(values, attrs):
-    """Missing samples: outside the CF ``valid_min``/``valid_max``/``valid_range``, or equal to
+    """Missing samples: outside the CF ``valid_min``/``valid_max``/``valid_range``, equal to one of
+    the CF ``missing_value`` markers (NaN among them: NaN samples), or equal to
     ``unwritten_value`` (netCDF's fill value in parts of a file that were never written)."""
     lo = attrs.get("valid_min")
     hi = attrs.get("valid_max")
@@ -603,6 +605,13 @@ def _missing_mask(values, attrs):
         unwritten = attrs.get("unwritten_value")
         if unwritten is not None:
             mask = values == np.asarray(unwritten, values.dtype).ravel()[0]
+        markers = attrs.get("missing_value")  # CF missing markers (a netCDF's _FillValue too)
+        if markers is not None:
+            markers = np.asarray(markers, values.dtype).ravel()
+            m = np.isin(values, markers[~np.isnan(markers)])
+            if np.isnan(markers).any():
+                m |= np.isnan(values)
+            mask = m if mask is None else (mask | m)
         if lo is not None:
             m = values < float(np.asarray(lo).ravel()[0])
             mask = m if mask is None else (mask | m)
