@@ -111,8 +111,11 @@ def test_rusinkiewicz_to_merl_reports_resampling(rusi_nc, tmp_path):
 
 
 def test_resampling_figures_as_json(rusi_nc, tmp_path):
+    # so coarse a grid misrepresents the source beyond the bound: written only when allowed
+    refused = _cli("convert", rusi_nc, tmp_path / "r.nc", "--grid", "{type = 'rusinkiewicz', n_theta_h = 20}")
+    assert refused.exit_code == 1 and "misrepresents" in refused.stderr and not (tmp_path / "r.nc").exists()
     result = _cli("convert", rusi_nc, tmp_path / "r.nc", "--grid", "{type = 'rusinkiewicz', n_theta_h = 20}",
-                  "--json")
+                  "--json", "--allow-invalid")
     assert result.exit_code == 0, result.stderr
     data = json.loads(result.stdout)
     assert data["resampled"] is True and data["format"] == "netcdf"
