@@ -452,3 +452,19 @@ def test_all_missing_merl_is_refused(tmp_path):
     proc = _run("convert", path, tmp_path / "empty.nc")
     _one_error(proc.stderr, proc.returncode, "coverage", exit_code=1)
     assert not (tmp_path / "empty.nc").exists()
+
+
+def test_resampling_bound_is_met_by_a_measured_file(tmp_path):
+    """The default conversion of a measured-like RGL file to netCDF stays inside
+    convert.RESAMPLING_BOUND (median and 95th percentile at θ ≤ 80°), so the bound refuses only
+    conversions that misrepresent their source."""
+    from _measured import measured_bsdf
+
+    from brdftab.convert import RESAMPLING_BOUND, convert
+
+    measured_bsdf(tmp_path / "m.bsdf")
+    result = convert(tmp_path / "m.bsdf", tmp_path / "m.nc", progress=False)
+    d = result.difference
+    print(f"measured-like .bsdf -> netCDF: median {100 * d.median_rel:.2f} %, p95 {100 * d.p95_rel:.2f} %")
+    assert d.median_rel < RESAMPLING_BOUND["median"] and d.p95_rel < RESAMPLING_BOUND["p95"]
+    assert not d.exceeds()
