@@ -323,7 +323,7 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
     if d is not None:
         click.echo(f"resampling error of f cosθi cosθo: rms relative {d.rms_rel:.3g}, max relative {d.max_rel:.3g} "
                    f"({d.points} check points, written table vs {'the averaged ' if result.folded else ''}input)")
-        click.echo(f"median relative error of f at θi, θo ≤ 80°: {d.median_rel:.3g}")
+        click.echo(f"median relative error of f at θi, θo ≤ 80°: {d.median_rel:.3g}, 95th percentile {d.p95_rel:.3g}")
     elif result.note:
         click.echo(f"resampling error: not computed ({result.note})")
 
