@@ -3,11 +3,14 @@
 Importing the command line (numpy, xarray, netCDF4) takes a good part of a second; a Ctrl-C or
 SIGTERM in that window used to print a traceback or end with a signal status. Here the
 handlers come first, so an interrupt during start-up ends quietly with 130 (SIGINT) or 143
-(SIGTERM), as it does once a command runs.
+(SIGTERM), as it does once a command runs. A signal the run inherits as ignored (``SIG_IGN``:
+SIGINT of a script's background job, ``nohup``-style launchers) stays ignored from the first
+instruction on, as it does once a command runs (:func:`brdftab._signals.handling`).
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import sys
@@ -35,12 +38,29 @@ def _stop_starting():
     os._exit(130)
 
 
+def _exit_now(code: int):
+    """End the process at once with ``code``: the run is over (its files closed, temporaries
+    removed); tearing down the interpreter's modules would take a good part of a second more."""
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(Exception):
+            stream.flush()
+    os._exit(code)
+
+
+def _late(signum, frame):
+    # a signal after the command has dealt with its outputs (or between the imports and the
+    # command): end now with its status, never with a traceback from the interpreter's shutdown
+    _exit_now(143 if signum == signal.SIGTERM else 130)
+
+
 def main():
+    previous = {}
     try:
-        previous = {signal.SIGTERM: signal.signal(signal.SIGTERM, _early_term),
-                    signal.SIGINT: signal.signal(signal.SIGINT, _early_int)}
+        for s, handler in ((signal.SIGTERM, _early_term), (signal.SIGINT, _early_int)):
+            if signal.getsignal(s) is not signal.SIG_IGN:  # an inherited "ignore" is kept
+                previous[s] = signal.signal(s, handler)
     except ValueError:  # not the main thread
-        previous = {}
+        pass
     try:
         from .cli import main as cli_main
     except KeyboardInterrupt:
@@ -51,6 +71,9 @@ def main():
             _stop_starting()
         raise
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-    return cli_main(prog_name="brdftab")
+        for s in previous:
+            signal.signal(s, _late)
+    code = cli_main(prog_name="brdftab", standalone_mode=False) or 0
+    if code in (130, 143):  # interrupted or terminated: nothing is left to do
+        _exit_now(code)
+    sys.exit(code)

@@ -1,4 +1,5 @@
-"""Progress while a file is written: the "writing NAME" bar and the writers' steps.
+"""Progress of the phases after tabulating: the "checking NAME" bar while the checks run, the
+"writing NAME" bar while a file is written, and the writers' steps.
 
 A writer calls :func:`write_step` between slabs. That updates the bar of the innermost
 :func:`write_progress` block and is a :func:`brdftab._signals.checkpoint`: a SIGINT or SIGTERM
@@ -13,7 +14,7 @@ import time
 
 from ._signals import checkpoint
 
-__all__ = ["write_step", "write_progress"]
+__all__ = ["write_step", "write_progress", "check_progress"]
 
 _observers: list = []
 
@@ -30,16 +31,16 @@ def write_step(done: int, total: int) -> None:
     checkpoint()
 
 
-class _WriteBar:
-    """A tqdm bar for one write: samples written when the writer reports steps, else the
-    elapsed time (refreshed by a small thread while the writer runs)."""
+class _PhaseBar:
+    """A tqdm bar for one phase (checks, a write): samples written when a writer reports
+    steps, else the elapsed time (refreshed by a small thread while the phase runs)."""
 
-    def __init__(self, label, enabled, delay):
+    def __init__(self, desc, enabled, delay):
         from tqdm.auto import tqdm
 
         self.delay = delay
         self.start = time.monotonic()
-        self.bar = tqdm(total=None, desc=f"writing {label}", unit="sample", unit_scale=True, delay=delay,
+        self.bar = tqdm(total=None, desc=desc, unit="sample", unit_scale=True, delay=delay,
                         disable=None if enabled is None else not enabled, leave=False,
                         bar_format="{desc}: {elapsed}")
         self._stop = threading.Event()
@@ -68,12 +69,7 @@ class _WriteBar:
 
 
 @contextlib.contextmanager
-def write_progress(label, progress: bool | None = None, delay: float | None = None):
-    """Show a "writing LABEL" progress bar while the block runs.
-
-    ``progress``: True/False, or None for a bar on a terminal only. The bar appears once the
-    block has run for ``delay`` seconds (default: the tabulation's progress delay).
-    """
+def _phase(desc, progress: bool | None, delay: float | None, observe: bool):
     if progress is False:
         yield
         return
@@ -81,10 +77,27 @@ def write_progress(label, progress: bool | None = None, delay: float | None = No
         from .table import PROGRESS_DELAY
 
         delay = PROGRESS_DELAY
-    bar = _WriteBar(label, progress, max(0.0, delay))
-    _observers.append(bar)
+    bar = _PhaseBar(desc, progress, max(0.0, delay))
+    if observe:
+        _observers.append(bar)
     try:
         yield
     finally:
-        _observers.remove(bar)
+        if observe:
+            _observers.remove(bar)
         bar.close()
+
+
+def write_progress(label, progress: bool | None = None, delay: float | None = None):
+    """Show a "writing LABEL" progress bar while the block runs.
+
+    ``progress``: True/False, or None for a bar on a terminal only. The bar appears once the
+    block has run for ``delay`` seconds (default: the tabulation's progress delay).
+    """
+    return _phase(f"writing {label}", progress, delay, observe=True)
+
+
+def check_progress(label, progress: bool | None = None, delay: float | None = None):
+    """Show a "checking LABEL" bar (the elapsed time) while the checks of what is about to be
+    written run; ``progress`` and ``delay`` as for :func:`write_progress`."""
+    return _phase(f"checking {label}", progress, delay, observe=False)

@@ -206,8 +206,28 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, levels, settings, progress
                 else f"channel{'s' if len(t.channels) > 1 else ''} {', '.join(t.channels)}")
         grid = getattr(t, "grid", None)
         click.echo(f"wrote {path} ({grid.describe() if grid is not None else 'its own grid'}, {what})")
-    if not result.report.passed:
-        click.echo(f"brdftab: warning: written despite failed checks: {result.report.summary()}", err=True)
+    # what the checks found in what was written: one line per report (outputs sharing a table share one)
+    for report, paths in _reports_of(result):
+        names = ", ".join(str(p) for p in paths)
+        if report.failures:
+            click.echo(f"brdftab: warning: {names} written despite failed checks: {report.summary()}", err=True)
+        elif report.warnings:
+            n = len(report.warnings)
+            click.echo(f"brdftab: warning: {names} written with {n} warning{'s' if n > 1 else ''}: "
+                       + "; ".join(f"{o.name}: {_one_line(o.detail)}" for o in report.warnings), err=True)
+
+
+def _reports_of(result) -> list:
+    """[(report, [paths written with it])] in the order written."""
+    out = []
+    for path, report in zip(result.written, result.reports):
+        for r, paths in out:
+            if r is report:
+                paths.append(path)
+                break
+        else:
+            out.append((report, [path]))
+    return out
 
 
 def _format_names_lazy() -> str:
@@ -303,22 +323,23 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
     if d is not None:
         click.echo(f"resampling error of f cosθi cosθo: rms relative {d.rms_rel:.3g}, max relative {d.max_rel:.3g} "
                    f"({d.points} check points, written table vs {'the averaged ' if result.folded else ''}input)")
-        click.echo(f"median relative error of f at θi, θo ≤ 80°: {d.median_rel:.3g}")
+        click.echo(f"median relative error of f at θi, θo ≤ 80°: {d.median_rel:.3g}, 95th percentile {d.p95_rel:.3g}")
     elif result.note:
         click.echo(f"resampling error: not computed ({result.note})")
 
 
 # --------------------------------------------------------------------------------------------
 def _direction(text, option):
+    written = text.replace(" ", "").split(",")
     try:
-        parts = [float(p) for p in text.replace(" ", "").split(",")]
+        parts = [float(p) for p in written]
     except ValueError:
         parts = []
     if len(parts) != 2 or not all(np.isfinite(parts)):
         raise BrdftabError(f"{option} expects two angles in degrees 'theta,phi', got {text!r}")
     theta, phi = parts
-    if not 0.0 <= theta <= 90.0:
-        raise BrdftabError(f"{option}: theta must lie in [0, 90] degrees, got {theta:g}")
+    if not 0.0 <= theta <= 90.0:  # the digits as written: 90.0000001 is not "90"
+        raise BrdftabError(f"{option}: theta must lie in [0, 90] degrees, got {written[0]}")
     return theta, phi
 
 
@@ -445,36 +466,86 @@ def info(file, as_json):
         **stats,
         "attributes": attrs,
     }
+    validation = _stored_validation(attrs)
+    if validation:
+        data["validation"] = validation
     if as_json:
         click.echo(json.dumps(data, default=str))
         return
-    click.echo(f"{file}  [{fmt.name}]")
+    lines = [f"{file}  [{fmt.name}]"]
     if attrs.get("comment"):
-        click.echo(f"  description: {_one_line(attrs['comment'])}")
+        lines.append(f"  description: {_one_line(attrs['comment'])}")
     if attrs.get("spec_file") or attrs.get("spec_sha256"):
         sha = str(attrs.get("spec_sha256") or "")
         name = attrs.get("spec_file") or "(unnamed)"
-        click.echo(f"  spec file:   {name}" + (f"  (sha256 {sha[:16]}...)" if sha else ""))
+        lines.append(f"  spec file:   {name}" + (f"  (sha256 {sha[:16]}...)" if sha else ""))
     if attrs.get("material"):
-        click.echo(f"  material:    {attrs['material']}")
-    click.echo(f"  model:       {attrs.get('model', table.name)}")
-    for line in _parameter_lines(attrs.get("model"), attrs.get("parameters"), 4):
-        click.echo(line)
-    click.echo(f"  grid:        {data['grid']}")
+        lines.append(f"  material:    {attrs['material']}")
+    lines.append(f"  model:       {attrs.get('model', table.name)}")
+    lines += _parameter_lines(attrs.get("model"), attrs.get("parameters"), 4)
+    lines.append(f"  grid:        {data['grid']}")
     for a in axes:
-        click.echo(f"    {a['name']:<9} {a['size']:>5} nodes  {a['min_deg']:.4g} .. {a['max_deg']:.4g} deg")
+        lines.append(f"    {a['name']:<9} {a['size']:>5} nodes  {a['min_deg']:.4g} .. {a['max_deg']:.4g} deg")
     if table.spectral:
-        click.echo(f"  wavelengths: {', '.join(f'{x:g}' for x in table.wavelengths)} nm")
+        lines.append(f"  wavelengths: {', '.join(f'{x:g}' for x in table.wavelengths)} nm")
     else:
-        click.echo(f"  channels:    {', '.join(table.channels)}")
+        lines.append(f"  channels:    {', '.join(table.channels)}")
     missing = f", {data['missing']} missing" if data["missing"] else ""
-    click.echo(f"  values:      {data['dtype']}, {data['samples']} samples, min {data['min']:.6g}, max {data['max']:.6g}"
-               f" sr-1, {data['nonfinite']} non-finite, {data['negative']} negative{missing}"
-               if data["min"] is not None else f"  values:      {data['samples']} samples, none finite{missing}")
+    lines.append(f"  values:      {data['dtype']}, {data['samples']} samples, min {data['min']:.6g}, max "
+                 f"{data['max']:.6g} sr-1, {data['nonfinite']} non-finite, {data['negative']} negative{missing}"
+                 if data["min"] is not None else f"  values:      {data['samples']} samples, none finite{missing}")
+    for key, what in (("validation", "validation:"), ("input_validation", "input validation:")):
+        if key in validation:
+            v = validation[key]
+            verdict = {True: "passed", False: "FAILED", None: "recorded"}[v.get("passed")]
+            lines.append(f"  {what:<22} {verdict}" + (f": {_one_line(v['summary'])}" if v.get("summary") else ""))
     for key in ("origin", "reciprocal", "isotropic", "parameterization", "sample_position", "phi_d_fold",
-                "theta_h_spacing", "relative_to", "converted_from", "brdftab_version", "created"):
-        if key in attrs:
-            click.echo(f"  {key + ':':<18} {attrs[key]}")
+                "theta_h_spacing", "relative_to", "converted_from", "converted_from_sha256", "brdftab_version",
+                "created"):
+        if key in attrs:  # only what the file records
+            lines.append(f"  {key + ':':<22} {attrs[key]}")
+    steps = [step for step in str(attrs.get("history", "")).splitlines() if step.strip()]
+    if steps:
+        lines.append("  history:")
+        lines += [f"    {' '.join(step.split())}" for step in steps]
+    for line in lines:
+        click.echo(_printable(line))
+
+
+def _stored_validation(attrs) -> dict:
+    """The validation results a file records: {"validation": {"passed", "summary"}} and the
+    same for "input_validation" (a conversion's input), for those it has."""
+    out = {}
+    for key in ("validation", "input_validation"):
+        passed, summary = attrs.get(f"{key}_passed"), attrs.get(f"{key}_summary")
+        if passed is None and summary is None:
+            continue
+        try:
+            verdict = None if passed is None else bool(int(passed))
+        except (TypeError, ValueError):
+            verdict = None
+        out[key] = {"passed": verdict, "summary": None if summary is None else str(summary)}
+    return out
+
+
+#: Characters shown escaped: they would move the cursor, recolour the terminal or reorder the
+#: text around them (bidirectional controls) instead of being seen.
+_BIDI = frozenset("\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069")
+
+
+def _printable(text: str) -> str:
+    """``text`` with control, format (e.g. bidirectional) and separator characters escaped as
+    ``\\xNN`` / ``\\uNNNN``, so that what a file stores is shown, not acted on by the terminal."""
+    import unicodedata
+
+    out = []
+    for ch in str(text):
+        if ch in _BIDI or (ch != " " and unicodedata.category(ch) in ("Cc", "Cf", "Zl", "Zp", "Cs")):
+            code = ord(ch)
+            out.append(f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}" if code < 0x10000 else f"\\U{code:08x}")
+        else:
+            out.append(ch)
+    return "".join(out)
 
 
 def _toml_value(v) -> str:

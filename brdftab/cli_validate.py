@@ -13,6 +13,7 @@ when an input could not be read or an option is wrong.
 
 from __future__ import annotations
 
+import contextlib
 import glob
 import json
 import sys
@@ -21,7 +22,7 @@ from pathlib import Path
 import click
 
 from ._atomic import atomic_path
-from ._locks import check_target
+from ._locks import claim
 from .errors import BrdftabError, ParameterError
 
 if sys.version_info >= (3, 11):
@@ -181,8 +182,6 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
     PATHS are table files or spec files (.toml); globs are expanded. Exit code 0 when every
     check passed (warnings allowed), 1 when a check failed, 2 when an input could not be read.
     """
-    from .checks import junit_xml, run_document
-
     if list_checks_:
         click.echo(list_checks())
         return
@@ -195,11 +194,33 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
     if junit is not None and not junit.parent.exists():
         raise BrdftabError(f"--junit {junit}: no such folder {junit.parent}")
     inputs, errors = expand_paths(paths)
+    _refuse_missing(inputs, errors)
     # no report may replace a file this run reads (through .., symbolic or hard links too)
     reads = [(p, "the input file") for p in inputs] + ([(config_file, "the --config file")] if config_file else [])
-    if junit is not None:
-        check_target(junit, overwrite=True, inputs=reads)
-    reports = []
+    with contextlib.ExitStack() as outputs:
+        if junit is not None:  # claimed before any check runs: an unwritable folder is refused now
+            outputs.enter_context(claim([junit], overwrite=True, inputs=reads))
+        code = _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin)
+    ctx.exit(code)
+
+
+def _refuse_missing(inputs, errors) -> None:
+    """Every input must be there before any checking starts (a spec may take minutes): one
+    line naming each missing file, folder given as a file and glob that matches nothing."""
+    problems = [" ".join(str(exc).split()) for _, exc in errors]
+    for p in inputs:
+        if p.is_dir():
+            problems.append(f"{p}: is a folder, not a file")
+        elif not p.exists():
+            problems.append(f"{p}: no such file" + (" (a broken symbolic link)" if p.is_symlink() else ""))
+    if problems:
+        raise BrdftabError(f"{'; '.join(problems)} (nothing checked)")
+
+
+def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin) -> int:
+    from .checks import junit_xml, run_document
+
+    reports, errors = [], []
     for path in inputs:
         try:
             reports += _check_one(path, layers, progress, origin, bar=not quiet and sys.stderr.isatty(), reads=reads)
@@ -221,5 +242,4 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
     if junit is not None:
         with atomic_path(junit, overwrite=True, inputs=reads) as tmp:
             tmp.write_text(junit_xml(reports, errors), encoding="utf-8")
-    code = 2 if errors else (1 if any(not r.passed for r in reports) else 0)
-    ctx.exit(code)
+    return 2 if errors else (1 if any(not r.passed for r in reports) else 0)

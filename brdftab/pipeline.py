@@ -15,13 +15,13 @@ from dataclasses import dataclass, field
 
 from . import formats
 from ._locks import check_target, claim, same_file
-from ._progress import write_progress
+from ._progress import check_progress, write_progress
 from ._signals import terminate_as_interrupt
 from .brdf import BRDF
 from .checks import Report, guard
 from .errors import BrdftabError
 from .spec import Spec
-from .table import tabulate
+from .table import check_checked_memory, tabulate
 
 __all__ = ["Result", "Planned", "plan", "run"]
 
@@ -66,6 +66,7 @@ def plan(spec: Spec, out_dir=None) -> list:
     for o in spec.outputs:
         fmt = formats.format_for(o.path, o.format)
         fmt.ensure_available()
+        fmt.check_path(o.target(out_dir))
         with formats.naming(o.target(out_dir)):
             grid = formats.target_grid(fmt, spec.grid, o.options)
         out.append(Planned(o.target(out_dir), fmt, dict(o.options), grid))
@@ -105,6 +106,8 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
         if any(same_file(p.target, q.target) for q in planned[:i]):
             raise BrdftabError(f"{spec.path}: two outputs write the same file {p.target}")
 
+    _check_memory(spec, planned)
+
     provenance = {"spec_sha256": spec.sha256, "spec_file": spec.path.name}
     if spec.description:
         provenance["comment"] = spec.description
@@ -121,7 +124,10 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
             if job.key in reports:
                 continue
             where = ", ".join(str(j.planned.target) for j in jobs if j.key == job.key)
-            reports[job.key] = job.check(spec, layers, subject=_subject(spec, job), allow_invalid=allow, what=where)
+            label = ", ".join(j.planned.target.name for j in jobs if j.key == job.key)
+            with check_progress(label, progress, _progress_delay(started)):
+                reports[job.key] = job.check(spec, layers, subject=_subject(spec, job), allow_invalid=allow,
+                                             what=where)
         for job in jobs:
             m = job.planned
             with write_progress(m.target.name, progress, _progress_delay(started)):
@@ -196,6 +202,17 @@ def _subject(spec, job) -> str:
     return f"{spec.path.name} on {grid.describe() if grid is not None else 'its own grid'}"
 
 
+def _check_memory(spec: Spec, planned) -> None:
+    """Refuse up front a run whose tables and checks would not fit in memory (not after the
+    tabulation, when the checks run out of it)."""
+    layout = spec.model.layout
+    n = layout.n_out(layout.resolve(spec.wavelengths))
+    tables = [(grid, n) for grid, members in _groups(planned)
+              if grid is not None and any(m.format.prepare is None for m in members)]
+    where = ", ".join(g.describe() for g, _ in tables)
+    check_checked_memory(tables, f"{spec.path.name}: tabulating and checking {where} x {n} channels")
+
+
 def _with_wavelengths(m, wavelengths) -> dict:
     """A format that samples the model itself is given the spec's wavelengths when it takes them."""
     options = dict(m.options)
@@ -221,7 +238,9 @@ def validate(spec: Spec, checks: dict | None = None, progress: bool | None = Non
     config = {k: v for k, v in spec.validation.items() if k != "allow_invalid"}
     provenance = {"spec_sha256": spec.sha256, "spec_file": spec.path.name}
     reports = {}
-    for job in _jobs(spec, plan(spec), provenance, progress):
+    planned = plan(spec)
+    _check_memory(spec, planned)
+    for job in _jobs(spec, planned, provenance, progress):
         if job.key not in reports:
             grid = getattr(job.checked, "grid", None) if job.checked is not None else job.planned.grid
             where = grid.describe() if grid is not None else "its own grid"

@@ -178,6 +178,35 @@ def test_progress_bar_covers_the_write(tmp_path, monkeypatch):
     assert result.exit_code == 0 and result.stderr == ""
 
 
+def test_progress_bar_covers_the_checks(tmp_path, monkeypatch):
+    """Between tabulating and writing, the checks of what is written run under a bar of their own."""
+    from brdftab import table as table_module
+
+    monkeypatch.setattr(table_module, "PROGRESS_DELAY", 0.0)
+    result = _cli("tabulate", _spec(tmp_path, output="x.nc"), "--progress")
+    assert result.exit_code == 0, result.stderr
+    err = result.stderr
+    assert "checking x.nc" in err
+    assert err.index("tabulating") < err.index("checking x.nc") < err.index("writing x.nc")
+
+
+def test_tabulate_says_when_what_it_wrote_has_warnings(tmp_path):
+    """A check that WARNs does not stop the export, but the run says so on stderr (not only 'wrote')."""
+    spec = tmp_path / "s.toml"
+    spec.write_text(f'[model]\nname = "lambert"\nalbedo = 0.5\n{TINY_GRID}[[output]]\npath = "a.nc"\n'
+                    '[[output]]\npath = "b.nc"\n')
+    result = _cli("tabulate", spec, "--set", "albedo.expected=0.8", "--level", "albedo=warn",
+                  "--level", "bilateral=warn", "--no-progress")
+    assert result.exit_code == 0, result.stderr
+    assert result.stdout.count("wrote ") == 2
+    lines = result.stderr.splitlines()
+    assert len(lines) == 1, lines  # the two outputs share one table, hence one report
+    assert lines[0].startswith("brdftab: warning: ") and f"{tmp_path / 'a.nc'}, {tmp_path / 'b.nc'} written with 1 warning: albedo: " in lines[0]
+    assert "differs from the expected" in lines[0]
+    result = _cli("tabulate", spec, "--overwrite", "--no-progress")  # nothing to say
+    assert result.exit_code == 0 and result.stderr == ""
+
+
 # --------------------------------------------------------------------------------------------
 # An interrupted or killed run leaves no partial output
 
@@ -552,9 +581,77 @@ def test_checks_show_progress_only_when_asked_and_slow(monkeypatch, capsys):
     assert capsys.readouterr().err == ""
 
 
+def test_info_shows_only_what_a_merl_file_records(tmp_path):
+    """A MERL file holds samples only: no creation time, no brdftab version, no history."""
+    path = tmp_path / "paint.binary"
+    brdftab.save(brdftab.models.create("lambert", albedo=0.3), path)
+    r = _cli("info", path)
+    assert r.exit_code == 0, r.stderr
+    keys = {line.split(":")[0].strip() for line in r.stdout.splitlines() if line.startswith("  ")}
+    assert not keys & {"created", "brdftab_version", "history", "validation"}, r.stdout
+    attrs = json.loads(_cli("info", path, "--json").stdout)["attributes"]
+    assert not {"created", "brdftab_version", "history", "source"} & set(attrs)
+
+
+def test_info_escapes_control_and_bidi_characters(tmp_path):
+    spec = tmp_path / "s.toml"
+    # a terminal escape (clear screen) and a right-to-left override, written as TOML escapes
+    spec.write_text('description = "paint\\u001b[2J\\u202eecnahne"\n[model]\nname = "lambert"\n'
+                    f'{TINY_GRID}[[output]]\npath = "x.nc"\n')
+    assert _cli("tabulate", spec, "--no-progress").exit_code == 0
+    r = _cli("info", tmp_path / "x.nc")
+    assert r.exit_code == 0, r.stderr
+    assert "\x1b" not in r.stdout and "\u202e" not in r.stdout
+    assert "  description: paint\\x1b[2J\\u202eecnahne" in r.stdout.splitlines()
+    doc = json.loads(_cli("info", tmp_path / "x.nc", "--json").stdout)  # JSON escapes them itself
+    assert doc["attributes"]["comment"] == "paint\x1b[2J\u202eecnahne"
+
+
+def test_info_shows_the_stored_validation_result(tmp_path):
+    good = _spec(tmp_path, output="good.nc")
+    assert _cli("tabulate", good, "--no-progress").exit_code == 0
+    bad = tmp_path / "bad.toml"
+    bad.write_text('[model]\nname = "scale"\nfactor = 1.5\n[model.term]\nname = "lambert"\nalbedo = 0.8\n'
+                   f'{TINY_GRID}[[output]]\npath = "bad.nc"\n')
+    assert _cli("tabulate", bad, "--allow-invalid", "--no-progress").exit_code == 0
+    lines = _cli("info", tmp_path / "good.nc").stdout.splitlines()
+    assert any(line.startswith("  validation:") and "passed: all checks passed (" in line for line in lines), lines
+    lines = _cli("info", tmp_path / "bad.nc").stdout.splitlines()
+    shown = next(line for line in lines if line.startswith("  validation:"))
+    assert "FAILED: energy: max a(θi) = 1.2" in shown
+    doc = json.loads(_cli("info", tmp_path / "bad.nc", "--json").stdout)
+    assert doc["validation"]["validation"]["passed"] is False
+    assert doc["validation"]["validation"]["summary"].startswith("energy: max a(θi) = 1.2")
+
+
 def test_info_of_a_table_naming_no_registered_model(tmp_path):
     # a MERL file names its material, not a model: info describes it (no unknown-model error)
     path = tmp_path / "paint.binary"
     brdftab.save(brdftab.models.create("lambert", albedo=0.3), path)
     r = CliRunner().invoke(main, ["info", str(path)])
     assert r.exit_code == 0 and "model:       unknown" in r.output, r.output
+
+
+def test_path_that_is_not_utf8_is_one_line_or_works(tmp_path):
+    """POSIX names may hold any bytes: where the format's library takes only UTF-8 paths
+    (netCDF/HDF5, OpenEXR) the path is refused up front in one line, exit 2, nothing created;
+    formats brdftab writes itself take the name as it is."""
+    from _cli import names
+
+    one_error, run, spec = _one_error, _run, _spec(tmp_path)
+    folder = tmp_path / os.fsdecode(b"out\xff")
+    proc = run("tabulate", spec, "--out", folder)
+    one_error(proc.stderr, proc.returncode, "out\\xff/out.nc", "netcdf", "valid UTF-8")
+    assert names(tmp_path) == [spec.name]
+    table = tmp_path / "t.nc"
+    assert run("tabulate", spec).returncode == 0 and (tmp_path / "out.nc").exists()
+    (tmp_path / "out.nc").rename(table)
+    for ext in ("nc", "exr"):
+        proc = run("convert", table, tmp_path / os.fsdecode(b"t\xff." + ext.encode()))
+        one_error(proc.stderr, proc.returncode, f"t\\xff.{ext}", "valid UTF-8")
+        proc = run("info", tmp_path / os.fsdecode(b"t\xff." + ext.encode()))
+        assert proc.returncode == 2
+    assert names(tmp_path) == sorted([spec.name, table.name])
+    merl = tmp_path / os.fsdecode(b"t\xff.binary")
+    brdftab.save(models.create("lambert", albedo=0.5), merl)
+    assert brdftab.open(merl).eval([0, 0, 1], [0.6, 0, 0.8])[0] == pytest.approx(0.5 / math.pi, rel=1e-6)

@@ -84,9 +84,10 @@ def test_same_grid_is_copied_value_identical(rusi_nc, tmp_path):
         np.testing.assert_array_equal(a["brdf"].values, b["brdf"].values)
         for name in a.coords:
             np.testing.assert_array_equal(a[name].values, b[name].values)
-        fresh = ("validation_", "albedo_")  # the conversion's own check report is added
+        fresh = ("validation_", "albedo_", "converted_from", "history")  # the conversion's own report and step
         keep = lambda d: {k: v for k, v in d.items() if not k.startswith(fresh)}  # noqa: E731
         assert keep(a.attrs) == keep(b.attrs)  # provenance carried over unchanged
+        assert b.attrs["history"].startswith(a.attrs["history"] + "\n")  # ... with the conversion appended
         assert "validation_report" in b.attrs
     assert sorted(p.name for p in tmp_path.iterdir()) == ["copy.nc"]
 
@@ -111,8 +112,11 @@ def test_rusinkiewicz_to_merl_reports_resampling(rusi_nc, tmp_path):
 
 
 def test_resampling_figures_as_json(rusi_nc, tmp_path):
+    # so coarse a grid misrepresents the source beyond the bound: written only when allowed
+    refused = _cli("convert", rusi_nc, tmp_path / "r.nc", "--grid", "{type = 'rusinkiewicz', n_theta_h = 20}")
+    assert refused.exit_code == 1 and "misrepresents" in refused.stderr and not (tmp_path / "r.nc").exists()
     result = _cli("convert", rusi_nc, tmp_path / "r.nc", "--grid", "{type = 'rusinkiewicz', n_theta_h = 20}",
-                  "--json")
+                  "--json", "--allow-invalid")
     assert result.exit_code == 0, result.stderr
     data = json.loads(result.stdout)
     assert data["resampled"] is True and data["format"] == "netcdf"
@@ -449,3 +453,68 @@ def test_all_missing_merl_is_refused(tmp_path):
     proc = _run("convert", path, tmp_path / "empty.nc")
     _one_error(proc.stderr, proc.returncode, "coverage", exit_code=1)
     assert not (tmp_path / "empty.nc").exists()
+
+
+# --------------------------------------------------------------------------------------------
+# Provenance: a converted table names its source file and checksum, and keeps every step
+
+def test_a_convert_of_a_convert_records_each_source_and_keeps_every_step(tmp_path):
+    import hashlib
+
+    spec = tmp_path / "s.toml"
+    spec.write_text('[model]\nname = "lambert"\nalbedo = 0.5\n[grid]\ntype = "rusinkiewicz"\nn_theta_h = 6\n'
+                    'n_theta_d = 6\nn_phi_d = 12\n[[output]]\npath = "a.nc"\n')
+    assert _cli("tabulate", spec, "--no-progress").exit_code == 0
+    coarse = '{type = "rusinkiewicz", n_theta_h = 3, n_theta_d = 3, n_phi_d = 6}'
+    r = _cli("convert", tmp_path / "a.nc", tmp_path / "b.nc", "--grid", coarse)  # resampled
+    assert r.exit_code == 0, r.stderr
+    r = _cli("convert", tmp_path / "b.nc", tmp_path / "c.nc")  # copied
+    assert r.exit_code == 0, r.stderr
+    for made, source in (("b.nc", "a.nc"), ("c.nc", "b.nc")):
+        with xr.open_dataset(tmp_path / made) as ds:
+            attrs = dict(ds.attrs)
+        assert attrs["converted_from"] == source
+        assert attrs["converted_from_sha256"] == hashlib.sha256((tmp_path / source).read_bytes()).hexdigest()
+    steps = attrs["history"].splitlines()
+    assert len(steps) == 3, steps
+    assert steps[0].endswith("table of lambert on rusinkiewicz theta_h[6] x theta_d[6] x phi_d[12]")
+    a_sum = hashlib.sha256((tmp_path / "a.nc").read_bytes()).hexdigest()
+    assert f"converted a.nc (sha256 {a_sum}) to b.nc, resampled onto rusinkiewicz theta_h[3]" in steps[1]
+    assert f"converted b.nc (sha256 {attrs['converted_from_sha256']}) to c.nc, copied" in steps[2]
+    # info shows the steps, oldest first
+    shown = _cli("info", tmp_path / "c.nc").stdout.splitlines()
+    at = shown.index("  history:")
+    assert [line.strip() for line in shown[at + 1:at + 4]] == steps
+
+
+def test_a_table_converted_from_a_merl_file_records_it(tmp_path):
+    import hashlib
+
+    src = tmp_path / "paint.binary"
+    brdftab.save(brdftab.models.create("lambert", albedo=0.3), src)
+    r = _cli("convert", src, tmp_path / "paint.nc")
+    assert r.exit_code == 0, r.stderr
+    with xr.open_dataset(tmp_path / "paint.nc") as ds:
+        attrs = dict(ds.attrs)
+    digest = hashlib.sha256(src.read_bytes()).hexdigest()
+    assert attrs["converted_from"] == "paint.binary" and attrs["converted_from_sha256"] == digest
+    # the MERL file records no history: the conversion is the first step
+    assert attrs["history"].splitlines() == [
+        f"{attrs['created']} brdftab {brdftab.__version__}: converted paint.binary (sha256 {digest}) to paint.nc, "
+        "copied"]
+
+
+def test_resampling_bound_is_met_by_a_measured_file(tmp_path):
+    """The default conversion of a measured-like RGL file to netCDF stays inside
+    convert.RESAMPLING_BOUND (median and 95th percentile at θ ≤ 80°), so the bound refuses only
+    conversions that misrepresent their source."""
+    from _measured import measured_bsdf
+
+    from brdftab.convert import RESAMPLING_BOUND, convert
+
+    measured_bsdf(tmp_path / "m.bsdf")
+    result = convert(tmp_path / "m.bsdf", tmp_path / "m.nc", progress=False)
+    d = result.difference
+    print(f"measured-like .bsdf -> netCDF: median {100 * d.median_rel:.2f} %, p95 {100 * d.p95_rel:.2f} %")
+    assert d.median_rel < RESAMPLING_BOUND["median"] and d.p95_rel < RESAMPLING_BOUND["p95"]
+    assert not d.exceeds()

@@ -535,7 +535,7 @@ def test_refusal_on_the_command_line_is_one_line(tmp_path):
 def test_a_table_resampled_onto_the_merl_grid_is_not_judged_as_samples_of_its_model(tmp_path):
     """Converting a table of a model to MERL resamples it: its bins hold interpolations of that
     table, so the conventions check does not compare them node by node with the model (that
-    refused every such conversion); the output records what it was converted from."""
+    refused every such conversion); the output records what it was resampled from."""
     src = tmp_path / "ggx.nc"
     brdftab.save(tabulate(models.create("microfacet", alpha=0.3), RusinkiewiczGrid(16, 16, 32), progress=False), src)
     from brdftab.convert import convert
@@ -543,4 +543,21 @@ def test_a_table_resampled_onto_the_merl_grid_is_not_judged_as_samples_of_its_mo
     result = convert(src, tmp_path / "ggx.binary")
     c = result.report.get("conventions")
     assert c.status == "pass" and "resampled from ggx.nc" in c.detail
-    assert result.written.ds.attrs["converted_from"] == "ggx.nc"
+    assert result.written.ds.attrs["resampled_from"] == "ggx.nc"
+
+
+def test_a_grid_the_format_does_not_store_is_said_to_be_ignored(tmp_path):
+    """MERL has its own grid: ``save(..., grid=other)`` writes the MERL grid and says so."""
+    import warnings
+
+    from brdftab.errors import BrdftabWarning
+
+    lam = models.create("lambert", albedo=0.5)
+    with pytest.warns(BrdftabWarning, match=r"x.binary: the merl format stores its own grid, merl .*; the grid given "
+                                             r"\(rusinkiewicz theta_h\[4\] x theta_d\[4\] x phi_d\[8\]\) is not used"):
+        written = brdftab.save(lam, tmp_path / "x.binary", grid=RusinkiewiczGrid(4, 4, 8))
+    assert written.grid.equals(merl_grid())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the MERL grid itself, or no grid: nothing to say
+        brdftab.save(lam, tmp_path / "y.binary", grid="merl")
+        brdftab.save(lam, tmp_path / "z.binary")

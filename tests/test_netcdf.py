@@ -242,6 +242,59 @@ def test_conforming_file_without_optional_attributes_is_read(tmp_path):
         brdftab.open(tmp_path / "nofold.nc")
 
 
+# -- CF missing markers: _FillValue and missing_value samples are missing, not NaN ----------------
+
+def _cf_file(path, encoding, attrs=None):
+    """A Lambertian (ρ = 0.5) table on a small grid as another CF writer (xarray) stores it, with
+    four samples not measured: NaN in memory, written as the encoding's marker."""
+    g = RusinkiewiczGrid(6, 6, 12)
+    t = tabulate(models.create("lambert", albedo=0.5), g, progress=False)
+    values = t.values.copy()
+    gone = [(0, 0, 0, 0), (1, 2, 3, 0), (5, 5, 11, 0), (3, 1, 7, 0)]
+    for i in gone:
+        values[i] = np.nan
+    ds = xr.Dataset({"brdf": (g.dims + ("channel",), values, {"units": "sr-1", **(attrs or {})})},
+                    coords={n: (n, a.values, {"units": "rad"}) for n, a in zip(g.dims, g.axes)} | {"channel": ["mono"]},
+                    attrs={"parameterization": "rusinkiewicz", "phi_d_fold": "reciprocity",
+                           "sample_position": "bin-centre", "reciprocal": 1, "isotropic": 1})
+    ds.to_netcdf(path, encoding={"brdf": encoding})
+    return path, len(gone)
+
+
+@pytest.mark.parametrize("encoding", [
+    {"_FillValue": -1.0},                                                   # _FillValue
+    {"_FillValue": None, "missing_value": -999.0},                          # missing_value
+    {"dtype": "int16", "scale_factor": 1e-5, "add_offset": 0.0, "_FillValue": -32768},  # packed
+    {"_FillValue": np.nan},                                                 # xarray's default for floats
+], ids=["fill-value", "missing-value", "packed", "nan-fill"])
+def test_cf_missing_markers_are_missing_samples(tmp_path, encoding):
+    from brdftab.checks import run_checks
+
+    path, n = _cf_file(tmp_path / "cf.nc", encoding)
+    with netCDF4.Dataset(path) as nc:  # the file holds the marker, as CF says
+        nc.set_auto_maskandscale(False)
+        v = nc["brdf"]
+        marker = v.getncattr("_FillValue") if "_FillValue" in v.ncattrs() else v.getncattr("missing_value")
+        raw = v[0, 0, 0, 0]
+        assert raw == marker or (np.isnan(marker) and np.isnan(raw))
+    t = brdftab.open(path)
+    assert int(t.missing.sum()) == n
+    stats = t.statistics()
+    assert stats["missing"] == n and stats["nonfinite"] == 0
+    assert stats["max"] == pytest.approx(0.5 / np.pi, rel=1e-4 if "scale_factor" in encoding else 1e-12)
+    report = run_checks(t, only=("finite", "missing", "energy"))
+    assert report.get("finite").status == "pass", report.to_text()      # not NaN failures
+    assert report.get("missing").detail.startswith(f"{n} of {t.values.size} samples are missing")
+    assert report.get("energy").figure == pytest.approx(0.5, abs=2e-3)  # left out of the integrals
+
+
+def test_cf_missing_markers_survive_a_round_trip_through_brdftab(tmp_path):
+    path, n = _cf_file(tmp_path / "cf.nc", {"_FillValue": -1.0})
+    brdftab.save(brdftab.open(path), tmp_path / "again.nc")
+    back = brdftab.open(tmp_path / "again.nc")
+    assert int(back.missing.sum()) == n and back.statistics()["nonfinite"] == 0
+
+
 # -- the reader checks the file: tampered attributes and coordinates -------------------------------
 
 @pytest.fixture(scope="module")
@@ -440,3 +493,18 @@ def test_convert_to_float32_judges_the_stored_values(tmp_path):
     assert back.ds.attrs["validation_passed"] == 0 and np.isinf(back.values).sum() == over
     r = run("convert", src, tmp_path / "f64.nc", "--level", "energy=off")  # float64 holds them
     assert r.returncode == 0, r.stderr
+
+
+def test_duplicate_channel_names_are_refused_on_read(tmp_path):
+    """Three channels all called R: which one would ``eval --json`` report? Refused, naming it."""
+    path = tmp_path / "rrr.nc"
+    brdftab.save(models.create("lambert", albedo=[0.2, 0.5, 0.8]), path, grid=RusinkiewiczGrid(3, 3, 4))
+    with netCDF4.Dataset(path, "a") as nc:
+        nc["channel_name"][:] = netCDF4.stringtochar(np.array(["R", "G", "R"], dtype="S1"))
+    with pytest.raises(FormatError, match=r"rrr.nc: .*duplicate channel name 'R' \(channels R, G, R\)"):
+        brdftab.open(path)
+    proc = subprocess.run([sys.executable, "-m", "brdftab", "eval", str(path), "--wi-deg", "10,0", "--wo-deg",
+                           "10,180", "--json"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == "", proc
+    assert proc.stderr.splitlines() == [f"brdftab: error: {path}: channels: duplicate channel name 'R' (channels R, "
+                                        "G, R): each channel needs its own name"]

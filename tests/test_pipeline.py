@@ -156,3 +156,28 @@ def test_written_anyway_the_file_records_the_failure_a_later_validate_finds(tmp_
     later = json.loads(v.stdout)["reports"][0]
     assert later["counts"] == stored["counts"]
     assert {c["name"]: c["status"] for c in later["checks"]} == {c["name"]: c["status"] for c in stored["checks"]}
+
+
+@pytest.mark.parametrize("verb", ["run", "validate"])
+def test_memory_check_up_front_covers_the_checks(tmp_path, monkeypatch, verb):
+    """Memory for the table (1.25x) but not for the checks (up to 8.8x measured): refused before
+    anything is tabulated, naming the grid, instead of running out of memory in the checks."""
+    from brdftab import pipeline, table as table_mod
+    from brdftab.errors import BrdftabError
+
+    spec_path = tmp_path / "s.toml"
+    spec_path.write_text('[model]\nname = "lambert"\nalbedo = [0.2, 0.5, 0.8]\n[grid]\ntype = "rusinkiewicz"\n'
+                         'n_theta_h = 20\nn_theta_d = 10\nn_phi_d = 16\n[[output]]\npath = "t.nc"\n')
+    spec = load_spec(spec_path)
+    nbytes = 20 * 10 * 16 * 3 * 8
+    monkeypatch.setattr(table_mod, "available_memory", lambda: table_mod.CHUNK_OVERHEAD + 3 * nbytes)
+    monkeypatch.setattr(pipeline, "tabulate", lambda *a, **k: pytest.fail("tabulated before the memory check"))
+    with pytest.raises(BrdftabError, match=r"s.toml: tabulating and checking rusinkiewicz theta_h\[20\] x theta_d\[10\]"
+                                           r" x phi_d\[16\] x 3 channels needs about"):
+        getattr(pipeline, verb)(spec)
+    assert not (tmp_path / "t.nc").exists()
+    # with the measured peak available, the same run goes through
+    monkeypatch.setattr(table_mod, "available_memory",
+                        lambda: table_mod.CHUNK_OVERHEAD + table_mod.CHECKED_PEAK * nbytes + 1)
+    monkeypatch.setattr(pipeline, "tabulate", table_mod.tabulate)
+    getattr(pipeline, verb)(spec, progress=False)

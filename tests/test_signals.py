@@ -283,3 +283,85 @@ def test_signal_during_a_stepped_write_acts_at_the_next_step(tmp_path, sig, code
     assert err.splitlines() == [f"brdftab: {word}; no output written"]
     assert took < 3.0, f"the write went on for {took:.1f} s after the signal"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.toml", "stepped.py"]
+
+
+# --------------------------------------------------------------------------------------------
+# An inherited "ignore" (a script's background job) and Ctrl-C at a terminal, through the
+# console entry point (``python -m brdftab``)
+
+RUN_SPEC = ('[model]\nname = "lambert"\nalbedo = 0.5\n[grid]\ntype = "rusinkiewicz"\nn_theta_h = 90\n'
+            'n_theta_d = 90\nn_phi_d = 180\n[[output]]\npath = "x.nc"\n')
+
+
+def test_an_inherited_ignored_sigint_stays_ignored_from_start_up_to_the_end(tmp_path):
+    """``trap '' INT`` in a script (or SIG_IGN in a parent) runs brdftab with SIGINT ignored:
+    SIGINTs from the first instant (the imports) to the end change nothing."""
+    (tmp_path / "s.toml").write_text(RUN_SPEC)
+
+    def ignore_sigint():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    proc = subprocess.Popen([sys.executable, "-m", "brdftab", "tabulate", "s.toml", "--no-progress"], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=ignore_sigint)
+    sent = 0
+    try:
+        time.sleep(0.15)  # past the interpreter's own start-up (site), into brdftab's
+        while proc.poll() is None:
+            proc.send_signal(signal.SIGINT)
+            sent += 1
+            time.sleep(0.05)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert sent >= 10
+    assert err == "" and out.startswith("wrote x.nc")
+    assert (tmp_path / "x.nc").exists()
+
+
+def _at_a_terminal(tmp_path, args):
+    """``python -m brdftab ARGS`` as the foreground process of a new pseudo-terminal; returns
+    (process, the terminal's master side): writing ``\\x03`` there is a Ctrl-C."""
+    import fcntl
+    import pty
+    import termios
+
+    master, slave = pty.openpty()
+
+    def controlling_terminal():
+        os.setsid()
+        fcntl.ioctl(slave, termios.TIOCSCTTY, 0)
+
+    proc = subprocess.Popen([sys.executable, "-m", "brdftab", *args], cwd=tmp_path, stdin=slave,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=controlling_terminal, pass_fds=(slave,))
+    os.close(slave)
+    return proc, master
+
+
+@pytest.mark.parametrize("when", ["start-up", "tabulating"])
+def test_ctrl_c_at_a_terminal_ends_the_run_with_130_within_0_2_s(tmp_path, when):
+    (tmp_path / "s.toml").write_text(RUN_SPEC)
+    proc, master = _at_a_terminal(tmp_path, ["tabulate", "s.toml", "--no-progress"])
+    try:
+        if when == "start-up":
+            time.sleep(0.3)  # numpy, xarray, netCDF4 are loading
+            assert proc.poll() is None
+        else:
+            wait_for(tmp_path, ".lock", proc)  # the output is claimed: the run is under way
+            time.sleep(0.1)
+        sent = time.monotonic()
+        os.write(master, b"\x03")
+        proc.wait(timeout=30)
+        took = time.monotonic() - sent
+        out, err = proc.communicate()
+    finally:
+        os.close(master)
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 130, err
+    word = "interrupted while starting" if when == "start-up" else "interrupted"
+    assert err.splitlines() == [f"brdftab: {word}; no output written"]
+    assert took < 0.2, f"the run ended {took:.2f} s after Ctrl-C"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.toml"]

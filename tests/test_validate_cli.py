@@ -207,3 +207,57 @@ def test_list_checks_and_the_pre_commit_hook(files):
     # the hook's entry with staged file names appended, as pre-commit calls it
     r = cli(*entries[0].split()[1:], files / "good.nc", files / "bad.nc")
     assert r.exit_code == 1
+
+
+# --------------------------------------------------------------------------------------------
+# Inputs and outputs are checked before any checking work
+
+def _no_checks(monkeypatch):
+    import brdftab.checks
+    import brdftab.pipeline
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a check ran before the inputs and outputs were checked")
+
+    monkeypatch.setattr(brdftab.checks, "run_checks", refuse)
+    monkeypatch.setattr(brdftab.pipeline, "validate", refuse)
+
+
+def test_a_missing_input_or_a_glob_matching_nothing_is_refused_before_any_check(tmp_path, monkeypatch):
+    spec = tmp_path / "bright.toml"
+    spec.write_text(BAD_SPEC)
+    _no_checks(monkeypatch)
+    r = CliRunner().invoke(main, ["validate", str(spec), str(tmp_path / "tables" / "**" / "*.nc"),
+                                  str(tmp_path / "gone.nc"), str(tmp_path), "--junit", str(tmp_path / "v.xml")])
+    assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
+    assert r.exit_code == 2 and r.stdout == ""
+    lines = r.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith("brdftab: error: "), lines
+    assert "*.nc: no file matches" in lines[0] and "gone.nc: no such file" in lines[0]
+    assert f"{tmp_path}: is a folder" in lines[0] and "nothing checked" in lines[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bright.toml"]  # no report written
+
+
+def test_an_unwritable_junit_folder_is_refused_before_any_check(tmp_path, monkeypatch):
+    import os
+
+    from brdftab import _locks
+
+    spec = tmp_path / "bright.toml"
+    spec.write_text(BAD_SPEC)
+    real_open = os.open
+
+    def read_only_folder(path, *args, **kw):  # what a folder without write permission answers
+        if str(path).startswith(str(tmp_path / "ro")):
+            raise PermissionError(13, "Permission denied", str(path))
+        return real_open(path, *args, **kw)
+
+    (tmp_path / "ro").mkdir()
+    monkeypatch.setattr(_locks.os, "open", read_only_folder)
+    _no_checks(monkeypatch)
+    r = CliRunner().invoke(main, ["validate", str(spec), "--junit", str(tmp_path / "ro" / "v.xml")])
+    assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
+    assert r.exit_code == 2 and r.stdout == ""
+    lines = r.stderr.splitlines()
+    assert lines == [f"brdftab: error: {tmp_path / 'ro' / 'v.xml'}: cannot write in folder {tmp_path / 'ro'} "
+                     "(Permission denied)"]

@@ -309,7 +309,7 @@ def _convert(check, name, key, value):
             raise ParameterError(f"{name}.{key}", f"expected an angle in degrees, got {value!r}")
         try:
             value = (np.radians(np.asarray(value, float))).tolist()
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ParameterError(f"{name}.{key}", f"expected angles in degrees, got {value!r}") from None
     try:
         return p.name, parse_params(check.thresholds, {p.name: value}, f"check {name}", fill=False)[p.name]

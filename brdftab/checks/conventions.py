@@ -13,7 +13,9 @@ f(wi, wo) = f(wo, wi), ``bilateral`` because f(φd) = f(−φd) (isotropic sourc
   median, so that a few corrupt samples — the sample audit's business — do not count), or they
   match the other sample position (``bin-centre`` ↔ ``lower-edge``, half a cell away along
   every axis whose nodes follow that rule) clearly better — the data were sampled elsewhere
-  than declared.
+  than declared. A table ``convert`` resampled from another (attribute ``resampled_from``)
+  holds interpolations of that table at its nodes, not samples of the model: it is not
+  compared node by node (the tabulation check measures how far it is from the model).
 """
 
 from __future__ import annotations
@@ -132,7 +134,7 @@ class Conventions(Check):
                 problems.append(f"phi_d nodes span {np.degrees(pd[0]):.4g}..{np.degrees(pd[-1]):.4g}°, outside the "
                                 f"stored range of phi_d_fold = '{fold}' ([0, {np.degrees(length):g}"
                                 f"{')' if periodic else ']'})")
-        resampled = str(t.ds.attrs.get("converted_from", "")) if hasattr(t, "ds") else ""
+        resampled = str(t.ds.attrs.get("resampled_from", "")) if hasattr(t, "ds") else ""
         if model is not None and resampled:
             # a table resampled from another: its nodes hold interpolations of that table, so
             # their distance from the model measures the resampling, not a fold or a position

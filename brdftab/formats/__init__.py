@@ -35,6 +35,7 @@ import contextlib
 import importlib
 import importlib.util
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
@@ -44,7 +45,7 @@ import numpy as np
 from .._atomic import atomic_path
 from .._locks import check_target
 from .._signals import held_signals
-from ..errors import BrdftabError, FormatError, ParameterError
+from ..errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
 from ..params import parse_params, suggest
 from ..registry import Registry
 
@@ -82,6 +83,10 @@ class FileFormat:
     prepare: Callable | None = None
     #: Rules between options that single declarations cannot say (one excludes another).
     check_options: Callable | None = None
+    #: True when the format's library opens files by UTF-8 names only (netCDF/HDF5, OpenEXR): a
+    #: path that is not valid UTF-8 (bytes such as 0xff in a name, as POSIX allows) is refused
+    #: up front (:meth:`check_path`) instead of failing inside the library after the work.
+    utf8_paths: bool = False
     #: Stated precision: the largest relative difference between what the writer wrote (the
     #: table, or its own sampling) and what the reader returns (the format contract tests it).
     precision: float = 0.0
@@ -113,6 +118,19 @@ class FileFormat:
         if miss:
             raise BrdftabError(f"format {self.name} needs the Python package {', '.join(miss)}, which is not "
                                f"installed (pip install {' '.join(miss)})")
+
+    def check_path(self, path) -> None:
+        """Refuse (one line) a path this format's library cannot open: not valid UTF-8."""
+        if not self.utf8_paths:
+            return
+        text = os.fspath(path)
+        try:
+            text.encode("utf-8") if isinstance(text, str) else text.decode("utf-8")
+        except UnicodeError:
+            shown = text.encode("utf-8", "surrogateescape") if isinstance(text, str) else text
+            raise BrdftabError(f"{shown.decode('utf-8', 'backslashreplace')}: the {self.name} library opens only paths "
+                               "that are valid UTF-8; rename the file or folder (MERL .binary and RGL .bsdf "
+                               "files take any name)") from None
 
     def validate_options(self, options: dict) -> dict:
         """The options checked against the declarations (unknown names with did-you-mean,
@@ -198,6 +216,7 @@ def read(path):
     """Read a table from ``path`` (any registered format)."""
     fmt = detect(path)
     fmt.ensure_available()
+    fmt.check_path(path)
     try:
         return fmt.read(Path(path))
     except BrdftabError as exc:
@@ -289,6 +308,7 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
     """
     fmt = format_for(path, format)
     fmt.ensure_available()
+    fmt.check_path(path)
     try:
         fmt.validate_options(options)
     except BrdftabError as exc:
@@ -310,8 +330,13 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
                            f"got {type(grid).__name__}")
 
     requested = grid if grid is not None else (brdf.grid if isinstance(brdf, Table) else None)
+    target = target_grid(fmt, requested, options)
+    if grid is not None and (target is None or not target.equals(grid)):
+        stored = f"its own grid, {target.describe()}" if target is not None else "its own sampling"
+        warnings.warn(f"{path}: the {fmt.name} format stores {stored}; the grid given ({grid.describe()}) is not used",
+                      BrdftabWarning, stacklevel=3)
     with naming(path):
-        payload = prepare(fmt, brdf, target_grid(fmt, requested, options), options)
+        payload = prepare(fmt, brdf, target, options)
     write_prepared(fmt, payload, path, overwrite=overwrite, options=options)
     return payload
 
@@ -329,6 +354,7 @@ def naming(path):
 
 def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, options: dict | None = None):
     """Write what :func:`prepare` returned to ``path`` atomically (no tabulation here)."""
+    fmt.check_path(path)
     with atomic_path(path, overwrite=overwrite) as tmp:
         with held_signals(writing=Path(path).name):
             fmt.write(payload, tmp, **dict(options or {}))

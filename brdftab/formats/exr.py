@@ -676,6 +676,7 @@ register(FileFormat(
     write=write_exr,
     magic=(MAGIC,),
     requires=("OpenEXR",),
+    utf8_paths=True,
     native_grid=native_grid,
     check_options=check_options,
     params=(Param("phi_d_deg", "floats", "phi_d slices in degrees, one part each (default: every phi_d node of the "

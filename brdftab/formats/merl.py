@@ -125,6 +125,8 @@ def _table_from_raw(raw, name: str):
     }
     table = make_table(values, merl_grid(), Layout(RGB), provenance=provenance)
     ds = table.ds
+    for key in ("created", "brdftab_version", "history", "source"):  # a MERL file records none of them
+        ds.attrs.pop(key, None)
     brdf = ds["brdf"]
     brdf.attrs["valid_min"] = 0.0
     brdf.attrs["comment"] = ("negative samples are MERL 'no measurement' markers: declared missing by valid_min, "

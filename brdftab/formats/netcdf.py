@@ -34,22 +34,57 @@ def read_netcdf(path):
     from ..table import Table
 
     try:
-        ds = xr.open_dataset(path, engine="netcdf4", cache=False)
+        # brdf's CF missing markers are not turned into NaN (NaN is a sample that failed): see _cf_missing
+        ds = xr.open_dataset(path, engine="netcdf4", cache=False, mask_and_scale={"brdf": False})
+        if "brdf" in ds.data_vars:
+            ds = _cf_missing(ds)
     except (OSError, ValueError, RuntimeError, KeyError, IndexError, TypeError) as exc:
         raise FormatError(f"{path}: not a readable netCDF file ({_first_line(exc)})") from None
-    if "brdf" in ds.data_vars:
-        var = ds["brdf"]
-        if var.dtype.kind == "f" and "_FillValue" not in var.encoding and "valid_max" not in var.attrs \
-                and "valid_range" not in var.attrs:
-            # Unwritten parts of a netCDF variable hold the library's default fill value:
-            # samples equal to it are missing (any other value, +inf included, is data).
-            fill = netCDF4.default_fillvals.get(var.dtype.str[1:])
-            if fill is not None:
-                var.attrs["unwritten_value"] = np.asarray(fill, var.dtype)
     try:
         return Table(ds)
+    except ParameterError as exc:  # a value the file holds, named (e.g. a duplicate channel name)
+        raise FormatError(f"{path}: {exc}") from None
     except (KeyError, ValueError, TypeError, IndexError) as exc:
         raise FormatError(f"{path}: not a brdftab table ({_first_line(exc)})") from None
+
+
+#: CF attributes of ``brdf`` given in packed units (before ``scale_factor``/``add_offset``).
+_PACKED_ATTRS = ("_FillValue", "missing_value", "valid_min", "valid_max", "valid_range")
+
+
+def _cf_missing(ds):
+    """``ds`` with ``brdf``'s CF missing markers kept as *missing*, not NaN.
+
+    Samples equal to the variable's ``_FillValue`` or to one of its ``missing_value`` (CF) are
+    missing samples, like those outside ``valid_min``/``valid_max``: the checks count them as
+    missing and leave them out, the table's interpolation skips them. They are listed in the
+    ``missing_value`` attribute (``_FillValue`` can only be set when a variable is created, so
+    brdftab writes them back as ``missing_value``). ``scale_factor``/``add_offset`` unpack the
+    samples and these attributes alike. Without ``_FillValue``, unwritten parts of a variable
+    hold the library's default fill value: samples equal to it are missing
+    (``unwritten_value``) unless ``valid_max``/``valid_range`` say what is data.
+    """
+    var = ds["brdf"].variable
+    attrs = dict(var.attrs)
+    packed = "scale_factor" in attrs or "add_offset" in attrs
+    if packed:
+        scale = float(np.asarray(attrs.get("scale_factor", 1.0)).ravel()[0])
+        offset = float(np.asarray(attrs.get("add_offset", 0.0)).ravel()[0])
+        var = xr.coding.variables.CFScaleOffsetCoder().decode(var, name="brdf")  # lazy: read in slabs
+        attrs = dict(var.attrs)
+        for key in _PACKED_ATTRS:
+            if key in attrs:
+                attrs[key] = np.asarray(attrs[key], np.float64) * scale + offset
+    markers = [np.asarray(attrs.pop(key)).ravel() for key in ("_FillValue", "missing_value") if key in attrs]
+    if markers:
+        attrs["missing_value"] = np.unique(np.concatenate(markers).astype(var.dtype))
+    elif var.dtype.kind == "f" and "valid_max" not in attrs and "valid_range" not in attrs:
+        # any other value, +inf included, is data
+        fill = netCDF4.default_fillvals.get(var.dtype.str[1:])
+        if fill is not None:
+            attrs["unwritten_value"] = np.asarray(fill, var.dtype)
+    var.attrs = attrs  # (var.data would load every sample)
+    return ds.assign({"brdf": var}) if packed else ds
 
 
 def _first_line(exc) -> str:
@@ -194,6 +229,7 @@ _FORMAT = register(FileFormat(
     read=read_netcdf,
     write=write_netcdf,
     magic=MAGIC,
+    utf8_paths=True,
     params=(
         Param("dtype", "choice", "Storage type of the samples (values are computed in float64).", default="float64",
               choices=("float64", "float32")),
