@@ -242,7 +242,7 @@ def tabulate(spec, out_dir, overwrite, allow_invalid, levels, settings, progress
 def _format_names_lazy() -> str:
     from . import formats as fm
 
-    return ", ".join(f"{n} ({'/'.join(f.extensions)})" for n, f in fm.FORMATS.items())
+    return ", ".join(f"{n} ({'/'.join(fm.FORMATS[n].extensions)})" for n in fm.usable())
 
 
 # --------------------------------------------------------------------------------------------

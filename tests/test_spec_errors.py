@@ -57,6 +57,17 @@ CASES = {
         _spec_text(model='[model]\nname = "microfacett"\nalpha = 0.3\n'),
         ["model.name", "microfacett", "did you mean 'microfacet'", "lambert", "microfacet", "sum", "scale"],
     ),
+    # every misspelt registry name (models, components, grid types, formats, checks): one wording
+    "unknown-distribution": (_spec_text(model=_microfacet('alpha = 0.3\ndistribution = "ggxx"\n')),
+                             ["model.distribution: unknown distribution 'ggxx' (did you mean 'ggx'?); valid: beckmann, "
+                              "ggx,"]),
+    "unknown-fresnel": (_spec_text(model=_microfacet('alpha = 0.3\nfresnel = "conductr"\n')),
+                        ["model.fresnel: unknown fresnel 'conductr' (did you mean 'conductor'?); valid: none, "]),
+    "unknown-output-format": (_spec_text(output='[[output]]\npath = "out.nc"\nformat = "netcdff"\n'),
+                              ["output[0].format: unknown format 'netcdff' (did you mean 'netcdf'?); valid: netcdf, "
+                               "merl, rgl, exr; zemax (.bsdf) recognised only, neither read nor written"]),
+    "unknown-grid-type-wording": (_spec_text(grid='[grid]\ntype = "rusinkiewiz"\n'),
+                                  ["grid.type: unknown grid type 'rusinkiewiz' (did you mean 'rusinkiewicz'?); valid: "]),
     # missing required parameters
     "microfacet-without-alpha": (_spec_text(model=_microfacet('distribution = "ggx"\n')), ["model.alpha"]),
     "conductor-without-k": (
@@ -103,7 +114,7 @@ CASES = {
     # [[output]]
     "unknown-output-extension": (
         _spec_text(output='[[output]]\npath = "out.xyz"\n'),
-        ["output[0].path", ".xyz"],
+        ["output[0].path", ".xyz", "(known: .nc, .nc4, .netcdf, .binary, .bsdf, .exr)"],
     ),
     "unknown-output-option": (
         _spec_text(output='[[output]]\npath = "out.nc"\ncompression = 4\n'),
