@@ -68,6 +68,17 @@ CASES = {
                                "merl, rgl, exr; zemax (.bsdf) recognised only, neither read nor written"]),
     "unknown-grid-type-wording": (_spec_text(grid='[grid]\ntype = "rusinkiewiz"\n'),
                                   ["grid.type: unknown grid type 'rusinkiewiz' (did you mean 'rusinkiewicz'?); valid: "]),
+    # channel layouts that do not combine: the error names the parameter or term, not "terms"
+    "n-k-channels-differ-in-a-term": (
+        _spec_text(model='[model]\nname = "sum"\n[[model.terms]]\nname = "lambert"\nalbedo = 0.1\n'
+                         '[[model.terms]]\nname = "microfacet"\nalpha = 0.3\nfresnel = "conductor"\n'
+                         'n = [0.2, 0.3, 0.4]\nk = [3, 3]\n'),
+        ["model.terms[1].k: has 2 channel values (c0, c1), but n has 3 channel values (R, G, B)"]),
+    "spectral-term-beside-rgb-term": (
+        _spec_text(model='[model]\nname = "sum"\n[[model.terms]]\nname = "lambert"\nalbedo = [0.1, 0.2, 0.3]\n'
+                         '[[model.terms]]\nname = "lambert"\nalbedo = {wavelengths_nm = [400, 700], '
+                         'values = [0.2, 0.2]}\n'),
+        ["model.terms[1]: is a spectrum, but terms[0] has 3 channel values (R, G, B)"]),
     # missing required parameters
     "microfacet-without-alpha": (_spec_text(model=_microfacet('distribution = "ggx"\n')), ["model.alpha"]),
     "conductor-without-k": (

@@ -243,8 +243,8 @@ class Fresnel(Component):
 
     @property
     def layout(self) -> Layout:
-        vals = [v for v in self.values.values() if hasattr(v, "layout")]
-        return combine_layouts([v.layout for v in vals]) if vals else Layout()
+        vals = {k: v for k, v in self.values.items() if hasattr(v, "layout")}
+        return combine_layouts([v.layout for v in vals.values()], names=vals) if vals else Layout()
 
     def F(self, cos_d, lam, n):
         """Reflectance at ``cos_d[M]`` (cosine to the microfacet normal), shape ``(M, n)`` or scalar."""

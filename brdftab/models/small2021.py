@@ -83,7 +83,7 @@ class Small2021Peak(Model):
         self.dist = C.create("distribution", "beckmann", alpha=m)
         from ..channels import combine_layouts
 
-        self.layout = combine_layouts([rho_s.layout, n.layout, k.layout])
+        self.layout = combine_layouts([rho_s.layout, n.layout, k.layout], names=("rho_s", "n", "k"))
 
     @property
     def lobe_width(self) -> float:
