@@ -106,7 +106,9 @@ class BRDF:
         """f(wi, wo) in sr⁻¹, shape ``broadcast(wi, wo).shape[:-1] + (n_channels,)``.
 
         ``wavelengths`` [nm] selects spectral evaluation (required for spectral BRDFs unless
-        they carry default wavelengths; allowed for grey BRDFs, which broadcast).
+        they carry default wavelengths; allowed for grey BRDFs, which broadcast). A BRDF with
+        named channels (R, G, B) has no spectrum: wavelengths are refused with a
+        :class:`~brdftab.errors.ParameterError`, for models and tables alike.
         ``assume_unit`` skips normalizing and the finiteness check, for callers whose
         directions are unit and finite by construction (grid nodes).
         """

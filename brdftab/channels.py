@@ -83,11 +83,31 @@ class Layout:
         return len(self.channels) if lam is None else len(lam)
 
 
-def combine_layouts(layouts) -> Layout:
-    """Layout of a combination (sum, product) of terms: grey terms broadcast to the others."""
+def combine_layouts(layouts, names=None) -> Layout:
+    """Layout of a combination (sum, product) of terms: grey terms broadcast to the others.
+
+    ``names`` label the layouts (the parameters or terms they come from, e.g. ``("n", "k")``):
+    a conflict is then a :class:`ParameterError` keyed by the second of the two, naming both."""
     layouts = list(layouts)
+    names = list(names) if names is not None else None
     spectral = [l for l in layouts if l.spectral]
     named = [l for l in layouts if not l.spectral and not l.grey]
+    if names is not None:
+        first, second = None, None
+        for name, l in zip(names, layouts):
+            if l.grey:
+                continue
+            if first is None:
+                first = (name, l)
+            elif l.spectral != first[1].spectral or (not l.spectral and l.channels != first[1].channels):
+                second = (name, l)
+                break
+        if second is not None:
+            def what(l):
+                return "is a spectrum" if l.spectral else \
+                    f"has {len(l.channels)} channel values ({', '.join(l.channels)})"
+            raise ParameterError(second[0], f"{what(second[1])}, but {first[0]} {what(first[1])}: give both the same "
+                                 "channels, both spectra, or one a single number")
     if spectral and named:
         raise ParameterError(
             "terms", f"cannot combine a spectral term with a term of channels {list(named[0].channels)}"

@@ -63,7 +63,35 @@ def _stopped(kind: str, written_before: int) -> str:
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None):
-    click.echo(f"brdftab: warning: {_one_line(message)}", err=True)
+    text = _one_line(message)
+    if issubclass(category, RuntimeWarning) and text.split(" encountered in ")[0] in _FP_MEANING:
+        text = _floating_point(text, filename, lineno)
+    if text in _shown:  # the same numerical note from every chunk or check: once per run
+        return
+    _shown.add(text)
+    click.echo(f"brdftab: warning: {text}", err=True)
+
+
+#: NumPy's floating-point warnings ("overflow encountered in square"), said in words.
+_FP_MEANING = {
+    "overflow": "a value exceeded the float64 range (about 1.8e308) and became infinite",
+    "invalid value": "an undefined operation (0/0, inf - inf, inf/inf, sqrt of a negative) gave NaN",
+    "divide by zero": "a division by zero gave an infinite value",
+    "underflow": "a value below the float64 range became 0",
+}
+_shown: set = set()
+
+
+def _floating_point(text: str, filename: str, lineno: int) -> str:
+    """One line for a NumPy floating-point warning: what happened and in which part of brdftab
+    (figures computed from such values may be inf or NaN)."""
+    kind, _, op = text.partition(" encountered in ")
+    path = Path(filename)
+    parts = path.parts
+    where = "/".join(parts[parts.index("brdftab"):]) if "brdftab" in parts else path.name
+    noun = {"invalid value": "invalid operation", "divide by zero": "division by zero"}.get(kind, kind)
+    return (f"numerical {noun} ({op}) in {where}, line {lineno}: {_FP_MEANING[kind]}; figures computed from it may "
+            "be inf or NaN")
 
 
 class _Group(click.Group):
@@ -81,6 +109,7 @@ class _Group(click.Group):
             prog_name = "brdftab"
         show = warnings.showwarning
         warnings.showwarning = _show_warning
+        _shown.clear()
         try:
             with _signals.handling():  # SIGINT -> KeyboardInterrupt, SIGTERM -> Terminated
                 code = self._main(args, prog_name, complete_var, written_before, **extra)
@@ -233,7 +262,7 @@ def _reports_of(result) -> list:
 def _format_names_lazy() -> str:
     from . import formats as fm
 
-    return ", ".join(f"{n} ({'/'.join(f.extensions)})" for n, f in fm.FORMATS.items())
+    return ", ".join(f"{n} ({'/'.join(fm.FORMATS[n].extensions)})" for n in fm.usable())
 
 
 # --------------------------------------------------------------------------------------------

@@ -213,20 +213,16 @@ def format_option(text: str) -> tuple:
 
 
 def _build_grid(cfg: dict, where: str):
-    from .grids import grid_from_config
+    from .grids import grid_from_config, grid_wavelengths
 
     try:
         grid = grid_from_config(cfg)
     except ParameterError as exc:
         raise BrdftabError(f"{where}: {exc.key}: {exc.detail}" if exc.key else f"{where}: {exc.detail}") from None
-    lam = cfg.get("wavelengths_nm")
-    if lam is not None:
-        if (not isinstance(lam, list) or not lam
-                or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in lam)):
-            raise BrdftabError(f"{where}: wavelengths_nm: expected a non-empty list of wavelengths in nm")
-        lam = np.asarray(lam, float)
-        if not np.all(np.isfinite(lam)) or np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
-            raise BrdftabError(f"{where}: wavelengths_nm: expected positive wavelengths in increasing order")
+    try:
+        lam = grid_wavelengths(cfg)
+    except ParameterError as exc:
+        raise BrdftabError(f"{where}: wavelengths_nm: {exc.detail}") from None
     return grid, lam
 
 

@@ -20,7 +20,8 @@ import numpy as np
 from .channels import ChannelValue
 from .errors import ParameterError
 
-__all__ = ["Param", "Kind", "KINDS", "REQUIRED", "parse_params", "register_kind", "suggest", "as_float"]
+__all__ = ["Param", "Kind", "KINDS", "REQUIRED", "parse_params", "register_kind", "suggest", "unknown",
+           "as_float"]
 
 
 class _Required:
@@ -38,6 +39,15 @@ def suggest(word: str, choices) -> str:
         return ""
     close = difflib.get_close_matches(word, [c for c in choices if isinstance(c, str)], n=1, cutoff=0.6)
     return f" (did you mean '{close[0]}'?)" if close else ""
+
+
+def unknown(kind: str, name, valid) -> str:
+    """The one wording for a name that is not among ``valid`` (registries, choices)::
+
+        unknown distribution 'ggxx' (did you mean 'ggx'?); valid: beckmann, ggx, ...
+    """
+    valid = [str(v) for v in valid]
+    return f"unknown {kind} {_show(name)}{suggest(name, valid)}; valid: {', '.join(valid) or 'none'}"
 
 
 class Kind:
@@ -152,7 +162,7 @@ class ChoiceKind(Kind):
 
     def convert(self, p, value):
         if not isinstance(value, str) or value not in p.choices:
-            raise _bad(p, value, suggest(value, p.choices))
+            raise ParameterError(p.name, unknown(p.name, value, p.choices))
         return value
 
 

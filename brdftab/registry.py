@@ -25,7 +25,7 @@ brdftab.registry.UnknownName: shape: unknown shape 'sqare' (did you mean 'square
 from __future__ import annotations
 
 from .errors import ParameterError
-from .params import suggest
+from .params import unknown
 
 __all__ = ["Registry", "UnknownName"]
 
@@ -56,10 +56,11 @@ class Registry(dict):
         """The registered names, in registration order."""
         return list(self)
 
-    def message(self, name) -> str:
-        """``unknown <kind> 'x' (did you mean 'y'?); valid: …`` — the one wording."""
-        hint = suggest(name, self) if isinstance(name, str) else ""
-        return f"unknown {self.kind} {name!r}{hint}; valid: {', '.join(self.names()) or 'none'}"
+    def message(self, name, valid=None) -> str:
+        """``unknown <kind> 'x' (did you mean 'y'?); valid: …`` — the one wording
+        (:func:`brdftab.params.unknown`, also that of every choice parameter); ``valid``: the
+        names to offer, when not all of them (default: every registered name)."""
+        return unknown(self.kind, name, self.names() if valid is None else valid)
 
     def get(self, name, default=_MISSING):
         """The member called ``name``; an unknown name raises :class:`UnknownName` (unless a

@@ -297,7 +297,7 @@ def _outputs(raw, path):
             fmt = formats.format_for(item["path"], fmt_name)
         except BrdftabError as exc:
             key = "format" if fmt_name is not None else "path"
-            raise _fail(path, f"{where}.{key}", str(exc)) from None
+            raise _fail(path, f"{where}.{key}", getattr(exc, "detail", str(exc))) from None
         options = {k: v for k, v in item.items() if k not in ("path", "format")}
         try:
             fmt.validate_options(options)

@@ -48,3 +48,26 @@ def test_directions_are_normalized_on_entry():
     for b in (GGX, t):
         assert b.eval(2 * w1, 0.3 * w2) == pytest.approx(b.eval(w1, w2), rel=1e-12)
     assert t.eval(2 * w1, w2) == pytest.approx(GGX.eval(w1, w2), rel=5e-3)
+
+
+def test_wavelengths_on_an_rgb_brdf_are_refused_by_model_and_table_alike():
+    """An RGB BRDF has no spectrum: eval(wi, wo, [550]) is the same ParameterError for the model
+    and for a table of it (a grey one broadcasts, both alike)."""
+    import brdftab
+    from brdftab.errors import ParameterError
+    from brdftab.grids import RusinkiewiczGrid
+
+    wi, wo = [0.3, 0.0, 0.95], [-0.3, 0.1, 0.95]
+    for albedo in ([0.2, 0.5, 0.8], 0.5):
+        model = brdftab.models.create("lambert", albedo=albedo)
+        table = brdftab.tabulate(model, RusinkiewiczGrid(4, 4, 8), progress=False)
+        if np.ndim(albedo):
+            messages = []
+            for brdf in (model, table):
+                with pytest.raises(ParameterError) as info:
+                    brdf.eval(wi, wo, [550])
+                messages.append(str(info.value))
+            assert messages[0] == messages[1] and "not a spectrum" in messages[0]
+        else:
+            assert np.allclose(model.eval(wi, wo, [550, 650]), table.eval(wi, wo, [550, 650]), rtol=1e-12)
+            assert np.allclose(model.eval(wi, wo, [550, 650]), 0.5 / np.pi, rtol=1e-12)

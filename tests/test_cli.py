@@ -655,3 +655,29 @@ def test_path_that_is_not_utf8_is_one_line_or_works(tmp_path):
     merl = tmp_path / os.fsdecode(b"t\xff.binary")
     brdftab.save(models.create("lambert", albedo=0.5), merl)
     assert brdftab.open(merl).eval([0, 0, 1], [0.6, 0, 0.8])[0] == pytest.approx(0.5 / math.pi, rel=1e-6)
+
+
+def test_numpy_floating_point_warnings_are_one_line_naming_where(capsys, tmp_path):
+    """NumPy's "overflow encountered in square" says neither where nor what it means: the CLI
+    says both, once per run however many chunks repeat it."""
+    from brdftab import cli as cli_module
+
+    cli_module._shown.clear()
+    for _ in range(3):
+        cli_module._show_warning(RuntimeWarning("overflow encountered in square"), RuntimeWarning,
+                                 "/somewhere/site-packages/brdftab/checks/tabulation.py", 71)
+    cli_module._show_warning(RuntimeWarning("invalid value encountered in scalar divide"), RuntimeWarning,
+                             "/somewhere/brdftab/integrate.py", 9)
+    assert capsys.readouterr().err.splitlines() == [
+        "brdftab: warning: numerical overflow (square) in brdftab/checks/tabulation.py, line 71: a value exceeded "
+        "the float64 range (about 1.8e308) and became infinite; figures computed from it may be inf or NaN",
+        "brdftab: warning: numerical invalid operation (scalar divide) in brdftab/integrate.py, line 9: an undefined "
+        "operation (0/0, inf - inf, inf/inf, sqrt of a negative) gave NaN; figures computed from it may be inf or NaN"]
+    # end to end: a model of values near the float64 limit; no bare NumPy message reaches the user
+    spec = tmp_path / "huge.toml"
+    spec.write_text('[model]\nname = "scale"\nfactor = 1e300\n[model.term]\nname = "lambert"\nalbedo = 0.5\n'
+                    + TINY_GRID + '[[output]]\npath = "huge.nc"\n')
+    proc = _run("validate", spec)
+    assert proc.returncode == 1 and "energy" in proc.stdout, proc
+    for line in proc.stderr.splitlines():
+        assert line.startswith("brdftab: warning: numerical ") and "brdftab/" in line and ", line " in line, line

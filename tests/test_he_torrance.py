@@ -531,3 +531,19 @@ def test_pyromark_spec_tabulates_and_validates(name, tmp_path):
     assert not model.reciprocal
     table = formats.read(tmp_path / f"{name}.nc")
     assert table.grid.phi_d_fold == "none" and not table.reciprocal
+
+
+def test_cone_narrower_than_its_bound_is_refused():
+    """A 1e-8° cone has a solid angle 2π(1 − cos w) of 0 in floating point: infinite lobe. The
+    parameter's bound (0.001°) refuses it; at the bound the cone is finite at the mirror."""
+    with pytest.raises(ParameterError, match=r"cone_half_width: expected a number >= 0.001 deg .*got 1e-08"):
+        models.create("he-torrance-1991", cone_half_width=math.radians(1e-8), **PYROMARK_HT)
+    wi, wo = _vec(math.radians(30)), _vec(math.radians(30), math.pi)
+    diffuse = models.create("he-torrance-1991", **PYROMARK_HT).eval(wi, wo)  # the delta variant: no cone in f
+    content = []
+    for w_deg in (1e-3, 1e-2):  # at the mirror the cone's f times its solid angle does not depend on w
+        w = math.radians(w_deg)
+        f = models.create("he-torrance-1991", cone_half_width=w, **PYROMARK_HT).eval(wi, wo)
+        assert np.all(np.isfinite(f))
+        content.append((f - diffuse) * 4 * math.pi * math.sin(w / 2) ** 2)
+    assert content[0][0] > 0 and content[0] == pytest.approx(content[1], rel=1e-5)

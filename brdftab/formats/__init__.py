@@ -50,7 +50,8 @@ from ..params import parse_params, suggest
 from ..registry import Registry
 
 __all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "write_prepared", "format_for",
-           "target_grid", "prepare", "stored", "cast_samples", "NotStorable", "available", "naming"]
+           "target_grid", "prepare", "stored", "cast_samples", "NotStorable", "available", "usable",
+           "naming"]
 
 #: Bytes of a file's head passed to ``magic`` and ``sniff`` (enough for the comment lines that
 #: start a Zemax ``.bsdf`` text file before its first keyword).
@@ -87,6 +88,9 @@ class FileFormat:
     #: path that is not valid UTF-8 (bytes such as 0xff in a name, as POSIX allows) is refused
     #: up front (:meth:`check_path`) instead of failing inside the library after the work.
     utf8_paths: bool = False
+    #: True for a format brdftab recognises (to say what a file is) but neither reads nor
+    #: writes (Zemax/LightTools text .bsdf): lists of usable formats leave it out.
+    recognised_only: bool = False
     #: Stated precision: the largest relative difference between what the writer wrote (the
     #: table, or its own sampling) and what the reader returns (the format contract tests it).
     precision: float = 0.0
@@ -162,6 +166,16 @@ def register(fmt: FileFormat) -> FileFormat:
     return FORMATS.register(fmt)
 
 
+def usable() -> list:
+    """Names of the formats brdftab reads and writes (not those it only recognises)."""
+    return [n for n, f in FORMATS.items() if not f.recognised_only]
+
+
+def _recognised_note() -> str:
+    only = [f"{n} ({'/'.join(f.extensions)})" for n, f in FORMATS.items() if f.recognised_only]
+    return f"; {', '.join(only)} recognised only, neither read nor written" if only else ""
+
+
 def available() -> dict:
     """``{name: FileFormat}`` of the formats whose optional libraries are installed."""
     return {n: f for n, f in FORMATS.items() if f.available}
@@ -181,12 +195,14 @@ def format_for(path=None, format: str | None = None) -> FileFormat:
     if format is not None:
         if not isinstance(format, str):
             raise BrdftabError(f"format must be a name such as {', '.join(map(repr, sorted(FORMATS)))}, got {format!r}")
-        return FORMATS.get(format)
+        if format not in FORMATS:
+            raise ParameterError("format", f"{FORMATS.message(format, usable())}{_recognised_note()}")
+        return FORMATS[format]
     suffix = "".join(Path(path).suffixes[-1:]).lower()
     for fmt in FORMATS.values():
         if suffix in fmt.extensions:
             return fmt
-    known = ", ".join(e for f in FORMATS.values() for e in f.extensions)
+    known = ", ".join(dict.fromkeys(e for n in usable() for e in FORMATS[n].extensions))
     raise BrdftabError(f"{path}: cannot tell the format from the extension {suffix!r} (known: {known})")
 
 
@@ -209,7 +225,7 @@ def detect(path) -> FileFormat:
     try:
         return format_for(path)
     except BrdftabError:
-        raise FormatError(f"{path}: not a file format brdftab reads (known: {', '.join(sorted(FORMATS))})") from None
+        raise FormatError(f"{path}: not a file format brdftab reads (known: {', '.join(sorted(usable()))})") from None
 
 
 def read(path):

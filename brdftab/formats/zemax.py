@@ -96,7 +96,7 @@ def read_zemax(path):
     if dialect == "lighttools":
         raise FormatError(f"{path}: a LightTools BSDF text file{details}, not an RGL tensor .bsdf file; brdftab "
                           "does not read this format yet")
-    from . import FORMATS, format_for
+    from . import FORMATS, format_for, usable
 
     try:
         fmt = format_for(path)
@@ -104,7 +104,7 @@ def read_zemax(path):
         fmt = None
     if fmt is None or fmt is FORMATS.get("zemax", None):
         raise FormatError(f"{path}: a text file, not a table format brdftab reads (known: "
-                          f"{', '.join(sorted(n for n in FORMATS if n != 'zemax'))})")
+                          f"{', '.join(sorted(usable()))})")
     fmt.ensure_available()
     return fmt.read(path)
 
@@ -122,4 +122,5 @@ register(FileFormat(
     write=None,
     sniff=sniff,
     check_options=check_options,
+    recognised_only=True,
 ))

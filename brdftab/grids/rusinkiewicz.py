@@ -15,7 +15,7 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..geometry import _hd_to_io_trig, io_to_hd
-from ..params import Param, suggest
+from ..params import Param, unknown
 from .axis import (HALF_PI, MAX_AXIS_NODES, PHI_D_FOLDS, SAMPLE_POSITIONS, TWO_PI, Axis, angle_axis, check_range,
                    count, fold_phi_d, uniform_values)
 from .base import Grid, choice_attr, read_coordinate, register
@@ -59,11 +59,9 @@ class RusinkiewiczGrid(Grid):
     def __init__(self, theta_h=90, theta_d=90, phi_d=180, phi_h=None, *, theta_h_spacing="linear",
                  phi_d_fold="reciprocity", sample_position="bin-centre", name="rusinkiewicz"):
         if not isinstance(phi_d_fold, str) or phi_d_fold not in PHI_D_FOLDS:
-            raise ParameterError("phi_d_fold", f"expected one of {', '.join(map(repr, PHI_D_FOLDS))}, got "
-                                 f"{phi_d_fold!r}{suggest(phi_d_fold, PHI_D_FOLDS)}")
+            raise ParameterError("phi_d_fold", unknown("phi_d_fold", phi_d_fold, PHI_D_FOLDS))
         if not isinstance(sample_position, str) or sample_position not in SAMPLE_POSITIONS:
-            raise ParameterError("sample_position", f"expected one of {', '.join(map(repr, SAMPLE_POSITIONS))},"
-                                 f" got {sample_position!r}")
+            raise ParameterError("sample_position", unknown("sample_position", sample_position, SAMPLE_POSITIONS))
         if not isinstance(theta_h_spacing, str) or theta_h_spacing not in ("linear", "merl", "explicit"):
             raise ParameterError("theta_h_spacing", f"expected 'linear', 'merl' or an explicit list, got "
                                  f"{theta_h_spacing!r}")

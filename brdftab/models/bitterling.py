@@ -31,7 +31,7 @@ import numpy as np
 from ..brdf import Model
 from ..params import Param
 from .distributions import d_beckmann, d_ggx, lambda_beckmann, lambda_ggx
-from .fresnel import fresnel_dielectric
+from .fresnel import INDEX_MIN, fresnel_dielectric
 from ._registry import register
 
 __all__ = ["CookTorranceAlphaTheta", "alpha_of_theta"]
@@ -53,8 +53,7 @@ class CookTorranceAlphaTheta(Model):
     params = (
         Param("distribution", "choice", "Microfacet normal distribution D (the paper uses GGX).", default="ggx",
               choices=tuple(_FUNCTIONS)),
-        Param("n", "float", "Real refractive index of the Fresnel term.", minimum=0.0, exclusive_minimum=True,
-              maximum=10.0),
+        Param("n", "float", "Real refractive index of the Fresnel term.", minimum=INDEX_MIN, maximum=10.0),
         Param("r_dh_lam", "float", "Directional-hemispherical reflectance R_dh,Lam of the uniform diffuse part "
               "(the BRDF adds R_dh,Lam/π).", default=0.0, minimum=0.0, maximum=1.0),
         Param("p1", "float", "Amplitude p1 of the tanh step of α(θi) (Eq. 20).", minimum=0.0, maximum=1.0),

@@ -38,7 +38,7 @@ class Sum(Model):
 
     def _setup(self, terms):
         self.terms = terms
-        self.layout = combine_layouts(t.layout for t in terms)
+        self.layout = combine_layouts([t.layout for t in terms], names=[f"terms[{i}]" for i in range(len(terms))])
         self.isotropic = all(t.isotropic for t in terms)
         self.reciprocal = all(t.reciprocal for t in terms)
         # a sum of energy-conserving terms may exceed 1: nothing is claimed
@@ -90,7 +90,7 @@ class Scale(_OneTerm):
     def _setup(self, factor, term):
         self.factor = factor
         self.term = term
-        self.layout = combine_layouts([factor.layout, term.layout])
+        self.layout = combine_layouts([factor.layout, term.layout], names=("factor", "term"))
         self.isotropic = term.isotropic
         self.reciprocal = term.reciprocal
         self.energy_conserving = term.energy_conserving and bool(np.all(factor.values <= 1.0))

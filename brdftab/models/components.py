@@ -30,7 +30,7 @@ from ..errors import ParameterError
 from ..params import Param, parse_params, suggest
 from ..registry import Registry
 from .distributions import d_beckmann, d_ggx, lambda_beckmann, lambda_ggx
-from .fresnel import fresnel_conductor, fresnel_dielectric, fresnel_schlick
+from .fresnel import INDEX_MAX, INDEX_MIN, fresnel_conductor, fresnel_dielectric, fresnel_schlick
 from .rayleigh_rice import q_unpolarized
 
 __all__ = ["COMPONENTS", "Component", "register", "get", "create", "Distribution", "Shadowing", "Fresnel"]
@@ -243,8 +243,8 @@ class Fresnel(Component):
 
     @property
     def layout(self) -> Layout:
-        vals = [v for v in self.values.values() if hasattr(v, "layout")]
-        return combine_layouts([v.layout for v in vals]) if vals else Layout()
+        vals = {k: v for k, v in self.values.items() if hasattr(v, "layout")}
+        return combine_layouts([v.layout for v in vals.values()], names=vals) if vals else Layout()
 
     def F(self, cos_d, lam, n):
         """Reflectance at ``cos_d[M]`` (cosine to the microfacet normal), shape ``(M, n)`` or scalar."""
@@ -282,8 +282,8 @@ class Dielectric(Fresnel):
     name = "dielectric"
     summary = "Unpolarized Fresnel reflectance of a dielectric with real relative index n."
     reference = "BornWolf1999"
-    params = (Param("n", "channel", "Real part of the relative refractive index.", minimum=0.0,
-                    exclusive_minimum=True),)
+    params = (Param("n", "channel", "Real part of the relative refractive index.", minimum=INDEX_MIN,
+                    maximum=INDEX_MAX),)
 
     def F(self, cos_d, lam, n):
         return fresnel_dielectric(cos_d[:, None], self.values["n"].at(lam, n))
@@ -295,8 +295,9 @@ class Conductor(Fresnel):
     summary = "Unpolarized Fresnel reflectance of an absorbing medium with index n + ik."
     reference = "BornWolf1999"
     params = (
-        Param("n", "channel", "Real part of the relative refractive index.", minimum=0.0, exclusive_minimum=True),
-        Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik).", minimum=0.0),
+        Param("n", "channel", "Real part of the relative refractive index.", minimum=INDEX_MIN, maximum=INDEX_MAX),
+        Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik).", minimum=0.0,
+              maximum=INDEX_MAX),
     )
 
     def F(self, cos_d, lam, n):
@@ -310,9 +311,9 @@ class RayleighRice(Fresnel):
                "n + ik (equals the Fresnel reflectance at the mirror direction).")
     reference = "Stover2012; Butler2015"
     params = (
-        Param("n", "channel", "Real part of the relative refractive index.", minimum=0.0, exclusive_minimum=True),
+        Param("n", "channel", "Real part of the relative refractive index.", minimum=INDEX_MIN, maximum=INDEX_MAX),
         Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik).", default=0.0,
-              minimum=0.0),
+              minimum=0.0, maximum=INDEX_MAX),
     )
 
     def F(self, cos_d, lam, n):

@@ -18,7 +18,14 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["fresnel_amplitudes", "fresnel_complex", "fresnel_conductor", "fresnel_dielectric",
-           "fresnel_schlick"]
+           "fresnel_schlick", "INDEX_MIN", "INDEX_MAX"]
+
+#: The range of a refractive index n (real part) and of an extinction coefficient k that model
+#: parameters accept: the Fresnel terms are finite there. Beyond it they are not (n or k of
+#: about 1e77 overflow n², an n of about 1e-155 underflows it: NaN); real materials lie far
+#: inside (n ≈ 0.05 for silver in the visible, k below 100).
+INDEX_MIN = 1e-6
+INDEX_MAX = 1e6
 
 
 def fresnel_amplitudes(cos_i, eta):

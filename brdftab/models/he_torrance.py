@@ -84,7 +84,7 @@ from ..brdf import BRDF, Model
 from ..errors import BrdftabError, ParameterError
 from ..params import Param
 from ..quadrature import gauss_legendre
-from .fresnel import fresnel_conductor
+from .fresnel import INDEX_MIN, fresnel_conductor
 from ._registry import register
 
 __all__ = ["HeTorrance1991", "ModifiedHeTorrance", "smith_shadow", "shadow_k", "effective_roughness",
@@ -286,10 +286,15 @@ def _fresnel(cos_t, n, k):
 # The models
 
 
+#: Narrowest specular cone (0.001°): the cone's solid angle 2π(1 − cos w) is lost to rounding
+#: below about 1e-8 rad (the lobe became infinite), and a cone far narrower than any grid step
+#: cannot be tabulated anyway.
+CONE_MIN = float(np.radians(1e-3))
+
+
 def _common_params(wavelength_default: float):
     return (
-        Param("n", "float", "Real part of the complex refractive index n + ik.", minimum=0.0, exclusive_minimum=True,
-              maximum=10.0),
+        Param("n", "float", "Real part of the complex refractive index n + ik.", minimum=INDEX_MIN, maximum=10.0),
         Param("k", "float", "Imaginary part (extinction coefficient) of the index n + ik.", default=0.0, minimum=0.0,
               maximum=20.0),
         Param("sigma0", "float", "rms surface height σ0 (Bitterling's σ).", units="µm", minimum=1e-3, maximum=10.0),
@@ -430,8 +435,7 @@ class HeTorrance1991(_HTSGBase):
     params = _common_params(550.0) + (
         Param("cone_half_width", "float", "Half-width w of Bitterling's specular cone (Eq. 17); without it the "
               "specular part is an ideal delta (a reflectance per incidence angle, stored beside tables).",
-              units="rad", default=None, minimum=0.0, exclusive_minimum=True, maximum=float(np.radians(30.0)),
-              angle=True),
+              units="rad", default=None, minimum=CONE_MIN, maximum=float(np.radians(30.0)), angle=True),
     )
 
     def _setup(self, n, k, sigma0, tau, wavelength_nm, r_dh_lam, cone_half_width):

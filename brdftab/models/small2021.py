@@ -50,6 +50,7 @@ from ..params import REQUIRED, Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from .combinators import Rotated, Sum
+from .fresnel import INDEX_MAX, INDEX_MIN
 from .lambert import Lambert
 from .rayleigh_rice import q_sum
 from ._registry import register
@@ -62,9 +63,10 @@ def _peak_params(suffix="", m=REQUIRED, rho=REQUIRED, n=REQUIRED):
         Param(f"m{suffix}", "float", "Beckmann width m of the peak (rms slope).", default=m, minimum=1e-6,
               maximum=1.0),
         Param(f"rho_s{suffix}", "channel", "Weight ρs of the peak.", default=rho, minimum=0.0, maximum=1e6),
-        Param(f"n{suffix}", "channel", "Real part of the index n + ik inside Q.", default=n, minimum=0.0,
-              exclusive_minimum=True),
-        Param(f"k{suffix}", "channel", "Imaginary part k (>= 0) of the index inside Q.", default=0.0, minimum=0.0),
+        Param(f"n{suffix}", "channel", "Real part of the index n + ik inside Q.", default=n, minimum=INDEX_MIN,
+              maximum=INDEX_MAX),
+        Param(f"k{suffix}", "channel", "Imaginary part k (>= 0) of the index inside Q.", default=0.0, minimum=0.0,
+              maximum=INDEX_MAX),
     )
 
 
@@ -81,7 +83,7 @@ class Small2021Peak(Model):
         self.dist = C.create("distribution", "beckmann", alpha=m)
         from ..channels import combine_layouts
 
-        self.layout = combine_layouts([rho_s.layout, n.layout, k.layout])
+        self.layout = combine_layouts([rho_s.layout, n.layout, k.layout], names=("rho_s", "n", "k"))
 
     @property
     def lobe_width(self) -> float:
