@@ -29,7 +29,7 @@ import numpy as np
 
 from .channels import Layout
 from .errors import ParameterError
-from .geometry import as_directions
+from .geometry import as_directions, normalize
 from .params import Kind, parse_params, register_kind
 
 __all__ = ["BRDF", "Model", "EVAL_CHUNK", "ORIGINS"]
@@ -47,16 +47,15 @@ HORIZON = 1e-12
 def _unit(w, name):
     """Directions normalized on entry (exactly unit ones are left untouched); non-finite rows
     stay non-finite (they evaluate to NaN); a zero vector is an error."""
-    with np.errstate(invalid="ignore", over="ignore"):
+    with np.errstate(invalid="ignore", over="ignore", under="ignore"):
         norm = np.sqrt(np.einsum("ij,ij->i", w, w))
         off = np.abs(norm - 1.0) > 1e-12
     if not off.any():
         return w
-    if np.any(norm[off] == 0):
+    if np.any(np.max(np.abs(w[off]), axis=1) == 0):
         raise ParameterError(name, "a direction has zero length")
     w = w.copy()
-    with np.errstate(invalid="ignore", over="ignore"):
-        w[off] /= norm[off, None]
+    w[off] = normalize(w[off])  # scaled first: huge and tiny finite directions keep their direction
     return w
 
 

@@ -43,6 +43,16 @@ class Layout:
     channels: tuple[str, ...] | None = ("mono",)
     wavelengths: np.ndarray | None = None
 
+    def __post_init__(self):
+        if self.channels is None:
+            return
+        seen = set()
+        for name in self.channels:
+            if name in seen:
+                raise ParameterError("channels", f"duplicate channel name {name!r} (channels "
+                                     f"{', '.join(map(str, self.channels))}): each channel needs its own name")
+            seen.add(name)
+
     @property
     def spectral(self) -> bool:
         return self.channels is None

@@ -323,22 +323,23 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
     if d is not None:
         click.echo(f"resampling error of f cosθi cosθo: rms relative {d.rms_rel:.3g}, max relative {d.max_rel:.3g} "
                    f"({d.points} check points, written table vs {'the averaged ' if result.folded else ''}input)")
-        click.echo(f"median relative error of f at θi, θo ≤ 80°: {d.median_rel:.3g}")
+        click.echo(f"median relative error of f at θi, θo ≤ 80°: {d.median_rel:.3g}, 95th percentile {d.p95_rel:.3g}")
     elif result.note:
         click.echo(f"resampling error: not computed ({result.note})")
 
 
 # --------------------------------------------------------------------------------------------
 def _direction(text, option):
+    written = text.replace(" ", "").split(",")
     try:
-        parts = [float(p) for p in text.replace(" ", "").split(",")]
+        parts = [float(p) for p in written]
     except ValueError:
         parts = []
     if len(parts) != 2 or not all(np.isfinite(parts)):
         raise BrdftabError(f"{option} expects two angles in degrees 'theta,phi', got {text!r}")
     theta, phi = parts
-    if not 0.0 <= theta <= 90.0:
-        raise BrdftabError(f"{option}: theta must lie in [0, 90] degrees, got {theta:g}")
+    if not 0.0 <= theta <= 90.0:  # the digits as written: 90.0000001 is not "90"
+        raise BrdftabError(f"{option}: theta must lie in [0, 90] degrees, got {written[0]}")
     return theta, phi
 
 

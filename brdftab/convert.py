@@ -42,7 +42,6 @@ from . import formats
 from ._locks import check_target, claim
 from ._progress import write_progress
 from ._signals import terminate_as_interrupt
-from .brdf import BRDF
 from .models.combinators import Average
 from .errors import BrdftabError, ParameterError, ValidationError
 from .grids import Grid
@@ -53,10 +52,17 @@ else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
 __all__ = ["Conversion", "Difference", "InvalidOutput", "convert", "grid_option", "grid_file",
-           "format_option", "difference", "check_points", "default_grid", "CHECK_POINTS", "PHI_H_SAMPLES"]
+           "format_option", "difference", "check_points", "default_grid", "CHECK_POINTS", "PHI_H_SAMPLES",
+           "RESAMPLING_BOUND"]
 
 #: Random direction pairs at which a resampled table is compared with its source.
 CHECK_POINTS = 4096
+#: The most a resampled output may misrepresent its source, as relative errors of f at the
+#: check points with θi, θo ≤ 80° (:class:`Difference`): the median and the 95th percentile.
+#: Beyond either, the conversion is refused (exit code 1, nothing written) unless
+#: ``allow_invalid``. The default conversion of a real measured RGL file to netCDF stays well
+#: inside (tests/test_convert.py::test_resampling_bound_is_met_by_a_measured_file).
+RESAMPLING_BOUND = {"median": 0.02, "p95": 0.10}
 #: Rotations about the normal averaged when an anisotropic source without a uniform φh axis is
 #: folded onto an isotropic grid.
 PHI_H_SAMPLES = 36
@@ -91,18 +97,32 @@ class Difference:
     ``max_rel`` the largest |Δf| / f where f μi μo exceeds 1e-3 of its largest value, over
     ``points`` check points (pairs where either is NaN — outside a domain or missing — are
     left out). Weighting by the cosines keeps grazing pairs, where formats that store f·cos
-    (RGL) cannot resolve f, from dominating the figure."""
+    (RGL) cannot resolve f, from dominating the figure. ``median_rel`` and ``p95_rel`` are the
+    median and 95th percentile of |Δf| / f over the check points with θi, θo ≤ 80° (where f is
+    above 1e-3 of its 99th percentile there); :data:`RESAMPLING_BOUND` judges these two."""
 
     max_rel: float
     rms_rel: float
     points: int
     requested: int
-    #: median |Δf| / f over check points with θi, θo ≤ 80° (where f > 0)
+    #: median |Δf| / f over check points with θi, θo ≤ 80° (where f is not negligible)
     median_rel: float = float("nan")
+    #: 95th percentile of the same
+    p95_rel: float = float("nan")
+
+    def exceeds(self, bound=None) -> list:
+        """The figures beyond ``bound`` (default :data:`RESAMPLING_BOUND`), as text; empty if none."""
+        bound = RESAMPLING_BOUND if bound is None else bound
+        out = []
+        for name, value in (("median", self.median_rel), ("p95", self.p95_rel)):
+            if np.isfinite(value) and value > bound[name]:
+                out.append(f"{name} {100 * value:.3g} % (bound {100 * bound[name]:g} %)")
+        return out
 
     def to_json(self) -> dict:
         return {"max_relative_difference": self.max_rel, "rms_relative_difference": self.rms_rel,
                 "median_relative_difference_80deg": self.median_rel,
+                "p95_relative_difference_80deg": self.p95_rel,
                 "check_points": self.points, "check_points_requested": self.requested}
 
 
@@ -248,8 +268,10 @@ def _rotations(grid) -> int:
 def check_points(grid, n: int = CHECK_POINTS, seed: int = 0):
     """``n`` random direction pairs at which a written table is compared with its source: the
     centres of random cells of ``grid`` (the tabulation check's points, above the horizon);
-    for a sample layout that is not a brdftab grid (a format's own), pairs uniform over the
-    hemisphere."""
+    for a sample layout that is not a brdftab grid (a format's own), half pairs uniform over
+    the hemisphere and half with wo near the mirror direction of wi (reflected about a normal
+    whose slopes are normal with a standard deviation log-uniform in [0.01, 0.5]), so that
+    narrow lobes are judged too."""
     from .checks.tabulation import cell_centres
     from .grids import Grid
 
@@ -263,7 +285,16 @@ def check_points(grid, n: int = CHECK_POINTS, seed: int = 0):
         r = np.sqrt(1 - z * z)
         return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
-    return hemisphere(), hemisphere()
+    wi, wo = hemisphere(), hemisphere()
+    half = n // 2
+    spread = np.exp(rng.uniform(np.log(0.01), np.log(0.5), half))
+    slopes = rng.normal(size=(half, 2)) * spread[:, None]
+    m = np.concatenate([-slopes, np.ones((half, 1))], axis=1)
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    near = 2.0 * np.sum(wi[:half] * m, axis=1, keepdims=True) * m - wi[:half]
+    keep = near[:, 2] > 1e-6
+    wo[:half][keep] = near[keep]
+    return wi, wo
 
 
 def difference(source, written, n: int = CHECK_POINTS, seed: int = 0):
@@ -293,11 +324,16 @@ def difference(source, written, n: int = CHECK_POINTS, seed: int = 0):
 
     rms, top, _, count = compare(f_w[ok], f_s[ok], wi[ok, 2] * wo[ok, 2])
     inner = ok & (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
+    ref = np.abs(f_s[inner])
+    # relative errors where f is not negligible (1e-3 of its 99th percentile: the tails of a
+    # narrow lobe, many decades down, would otherwise be judged on noise-sized values)
+    big = ref > 1e-3 * np.percentile(ref, 99) if ref.size else np.zeros(0, bool)
     with np.errstate(invalid="ignore", divide="ignore"):
-        rel = np.abs(f_w[inner] - f_s[inner]) / np.abs(f_s[inner])
+        rel = np.abs(f_w[inner][big] - f_s[inner][big]) / ref[big]
     rel = rel[np.isfinite(rel)]
     median = float(np.median(rel)) if rel.size else float("nan")
-    return Difference(top, rms, count, int(n), median), ""
+    p95 = float(np.percentile(rel, 95)) if rel.size else float("nan")
+    return Difference(top, rms, count, int(n), median, p95), ""
 
 
 # --------------------------------------------------------------------------------------------
@@ -331,6 +367,7 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
     options = dict(options or {})
     fmt = formats.format_for(target, format)
     fmt.ensure_available()
+    fmt.check_path(target)
     try:
         fmt.validate_options(options)
     except ParameterError as exc:
@@ -392,12 +429,26 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
         else:
             with formats.naming(target):
                 payload = formats.prepare(fmt, brdf, out_grid, options)
-        # validate what is written (a copy is the input itself: its report is the output's)
-        checked = payload if isinstance(payload, BRDF) else getattr(payload, "bsdf", None)
-        if checked is table or checked is None:
-            report_out = report_in
+        # validate what is written, as the file stores it (a copy is the input itself: its
+        # report is the output's)
+        from .table import Table
+
+        try:
+            checked = formats.stored(fmt, payload, options)
+        except formats.NotStorable as exc:
+            from .checks import unstorable_report
+
+            checked, report_out = exc, unstorable_report(exc, checks, allow_invalid=True)
         else:
-            report_out = _run_checks(checked, checks, origin, reference=brdf)
+            if isinstance(checked, Table):
+                payload = checked  # the samples the file holds: written, stamped and checked
+            if checked is table or checked is None:
+                report_out = report_in
+            else:
+                # judged against what the output's own provenance names, as a later `brdftab
+                # validate` of the file judges it (its report is the one stored in the file);
+                # how far the output is from the input is the Difference below
+                report_out = _run_checks(checked, checks, origin)
         if hasattr(payload, "ds"):
             from .checks import stamp
 
@@ -407,6 +458,15 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
             _stamp_provenance(payload, table, source, target, out_grid if resampled else None)
         if not report_out.passed and not allow_invalid:
             raise InvalidOutput(_refusal(report_out, source, target))
+        if (resampled or folded) and checked is not None and checked is not table and not allow_invalid:
+            # judge the resampling before anything is written
+            gate, _ = difference(brdf, checked, n_check)
+            beyond = gate.exceeds() if gate is not None else []
+            if beyond:
+                raise InvalidOutput(f"refusing to write {target}: it misrepresents {source}: relative error of f at "
+                                    f"θi, θo ≤ 80° {', '.join(beyond)} over {gate.points} check points (nothing "
+                                    "written; choose a finer grid or format options, or pass --allow-invalid to "
+                                    "write it anyway)")
         with write_progress(target.name, progress, _delay(started)):
             formats.write_prepared(fmt, payload, target, overwrite=overwrite, options=options)
         written = payload

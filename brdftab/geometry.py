@@ -67,9 +67,13 @@ def vec_to_sph(v):
 
 
 def normalize(v):
-    """``v / |v|`` along the last axis."""
+    """``v / |v|`` along the last axis, for any finite non-zero ``v``: divided by its largest
+    component first, so |v|² neither overflows (``[1e155, 0, 1e155]``) nor underflows
+    (``[1e-320, 0, 1e-320]``). A zero or non-finite vector gives NaN."""
     v = np.asarray(v, float)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        u = v / np.max(np.abs(v), axis=-1, keepdims=True)
+        return u / np.linalg.norm(u, axis=-1, keepdims=True)
 
 
 def _rot(v, angle, i, j):

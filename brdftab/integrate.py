@@ -291,6 +291,16 @@ def _integrate(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
     return total, cover, wmin
 
 
+def _integrand(brdf, wi, wo, wavelengths):
+    """f at the quadrature nodes — for a BRDF that evaluates f·cosθo itself (``eval_cos``: an
+    RGL ``.bsdf`` file, read as Mitsuba reads it) that value over cosθo, so the albedo is the
+    integral of what a renderer integrates (the file's own, not of f held near the horizon)."""
+    fn = getattr(brdf, "eval_cos", None)
+    if callable(fn):
+        return np.asarray(fn(wi, wo, wavelengths), float) / wo[:, 2:3]
+    return brdf.eval(wi, wo, wavelengths)
+
+
 def _hinted(b) -> bool:
     return callable(getattr(b, "albedo_rule", None)) or callable(getattr(b, "lobe_frame", None))
 
@@ -330,7 +340,7 @@ def _integrate_rule(brdf, theta_i, phi_i, wavelengths):
             wo, w = rule(wi[j], wavelengths=use) if takes_lam else rule(wi[j])
             keep = wo[:, 2] > _Z_MIN
             wo, proj = wo[keep], w[keep] * wo[keep, 2]
-            f = brdf.eval(np.broadcast_to(wi[j], wo.shape), wo, use)
+            f = _integrand(brdf, np.broadcast_to(wi[j], wo.shape), wo, use)
             aj, cj = _accumulate(f, proj)
             if hemisphere:  # the rule covers the BRDF's domain: coverage of the hemisphere
                 valid = ~np.isnan(f)
@@ -378,7 +388,7 @@ def _integrate_framed(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
             wo = uo @ R
             keep = wo[:, 2] > _Z_MIN
             wo, proj = wo[keep], w[keep] * wo[keep, 2]
-            f = brdf.eval(np.broadcast_to(wi[j], wo.shape), wo, wavelengths)
+            f = _integrand(brdf, np.broadcast_to(wi[j], wo.shape), wo, wavelengths)
             aj, cj = _accumulate(f, proj)
         if a is None:
             probe = brdf.eval(wi[j:j + 1], wi[j:j + 1], wavelengths) if f is None else f
@@ -448,7 +458,7 @@ def _integrate_plain(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
         seg = np.repeat(np.arange(start, stop), [r[0].shape[0] for r in rules])
         wo = np.concatenate([r[0] for r in rules])
         proj = np.concatenate([r[1] for r in rules])
-        f = brdf.eval(wi[seg], wo, wavelengths)
+        f = _integrand(brdf, wi[seg], wo, wavelengths)
         if a is None:
             a = np.zeros((m, f.shape[-1]))
             c = np.zeros((m, f.shape[-1]))

@@ -20,7 +20,7 @@ import numpy as np
 from .channels import ChannelValue
 from .errors import ParameterError
 
-__all__ = ["Param", "Kind", "KINDS", "REQUIRED", "parse_params", "register_kind", "suggest"]
+__all__ = ["Param", "Kind", "KINDS", "REQUIRED", "parse_params", "register_kind", "suggest", "as_float"]
 
 
 class _Required:
@@ -75,8 +75,23 @@ def register_kind(kind: Kind) -> Kind:
 
 def _bad(p, value, why=""):
     if p.angle and isinstance(value, (int, float, np.number)) and not isinstance(value, bool):
-        value = float(np.degrees(value))  # angles reach Params in radians; users wrote degrees
+        x = as_float(value)
+        if x is not None:
+            value = float(np.degrees(x))  # angles reach Params in radians; users wrote degrees
     return ParameterError(p.name, f"expected {p.expected()}, got {_show(value)}{why}")
+
+
+def as_float(value) -> float | None:
+    """``value`` as a float, or None when it has none (an integer of hundreds of digits, as a
+    spec may hold, overflows float: it is out of every range, not an internal error)."""
+    try:
+        return float(value)
+    except (OverflowError, TypeError, ValueError):
+        return None
+
+
+def _too_large(value) -> str:
+    return " (too large)" if isinstance(value, (int, np.integer)) and as_float(value) is None else ""
 
 
 class FloatKind(Kind):
@@ -89,12 +104,9 @@ class FloatKind(Kind):
     def convert(self, p, value):
         if isinstance(value, bool) or not isinstance(value, (int, float, np.number)) or np.iscomplexobj(value):
             raise _bad(p, value)
-        try:
-            x = float(value)
-        except OverflowError:
-            raise _bad(p, value) from None
-        if not p.in_range(np.array([x])):
-            raise _bad(p, value)
+        x = as_float(value)
+        if x is None or not p.in_range(np.array([x])):
+            raise _bad(p, value, _too_large(value))
         return x
 
 
@@ -108,8 +120,9 @@ class IntKind(Kind):
     def convert(self, p, value):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
             raise _bad(p, value)
-        if not p.in_range(np.array([float(value)])):
-            raise _bad(p, value)
+        x = as_float(value)
+        if x is None or not p.in_range(np.array([x])):
+            raise _bad(p, value, _too_large(value))
         return int(value)
 
 
@@ -168,7 +181,8 @@ class FloatsKind(Kind):
         vals = value if isinstance(value, (list, tuple)) else [value]
         if not vals or any(isinstance(v, bool) or not isinstance(v, (int, float, np.number)) for v in vals):
             raise ParameterError(p.name, f"expected {self.expected(p)}, got {_show(value)}")
-        arr = np.asarray(vals, float)
+        floats = [as_float(v) for v in vals]
+        arr = np.asarray([np.nan if v is None else v for v in floats], float)
         if not np.all(np.isfinite(arr)) or not p.in_range(arr):
             rng = p.range_text()
             raise ParameterError(p.name, f"expected finite numbers{' ' + rng if rng else ''}, got {_show(value)}")

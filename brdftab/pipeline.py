@@ -21,7 +21,7 @@ from .brdf import BRDF
 from .checks import Report, guard
 from .errors import BrdftabError
 from .spec import Spec
-from .table import tabulate
+from .table import check_checked_memory, tabulate
 
 __all__ = ["Result", "Planned", "plan", "run"]
 
@@ -52,8 +52,11 @@ class Result:
     @property
     def report(self) -> Report:
         merged = Report()
-        for r in self.reports:
-            merged.outcomes.extend(r.outcomes)
+        seen = set()
+        for r in self.reports:  # outputs that store the same values share one report: once
+            if id(r) not in seen:
+                seen.add(id(r))
+                merged.outcomes.extend(r.outcomes)
         return merged
 
 
@@ -63,6 +66,7 @@ def plan(spec: Spec, out_dir=None) -> list:
     for o in spec.outputs:
         fmt = formats.format_for(o.path, o.format)
         fmt.ensure_available()
+        fmt.check_path(o.target(out_dir))
         with formats.naming(o.target(out_dir)):
             grid = formats.target_grid(fmt, spec.grid, o.options)
         out.append(Planned(o.target(out_dir), fmt, dict(o.options), grid))
@@ -102,6 +106,8 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
         if any(same_file(p.target, q.target) for q in planned[:i]):
             raise BrdftabError(f"{spec.path}: two outputs write the same file {p.target}")
 
+    _check_memory(spec, planned)
+
     provenance = {"spec_sha256": spec.sha256, "spec_file": spec.path.name}
     if spec.description:
         provenance["comment"] = spec.description
@@ -111,45 +117,100 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
     result = Result()
     # Claim every target before any work: a concurrent run to the same file is refused now.
     with terminate_as_interrupt(), claim([p.target for p in planned], overwrite, inputs):
-        jobs = []  # (Planned, payload to write, the BRDF that payload holds)
-        for grid, members in _groups(planned):
-            # one tabulation per target grid; formats with their own prepare (they sample the
-            # model themselves, like the RGL writer) are given the model
-            needs_table = any(m.format.prepare is None for m in members)
-            if needs_table:
-                source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance)
-            else:
-                source = spec.model
-            for m in members:
-                options = _with_wavelengths(m, spec.wavelengths)
-                with formats.naming(m.target):
-                    payload = formats.prepare(m.format, source, m.grid, options)
-                jobs.append((m, options, payload, payload if isinstance(payload, BRDF) else source))
-        # validate what is written, before anything is: a table's metadata gets the report
+        jobs = _jobs(spec, planned, provenance, progress)
+        # validate what is written, as stored, before anything is: a table's metadata gets the report
         reports = {}
-        for m, _, _, checked in jobs:
-            key = id(checked)
-            if key in reports:
+        for job in jobs:
+            if job.key in reports:
                 continue
-            where = ", ".join(str(j[0].target) for j in jobs if j[3] is checked)
-            grid = getattr(checked, "grid", None)
-            # the spec's model, unless the format tabulated something derived from it (MERL's
-            # φh average or symmetrization): then the table's provenance names what it holds
-            made_from = getattr(checked, "ds", None)
-            derived = made_from is not None and made_from.attrs.get("model") != spec.model.name
-            label = ", ".join(j[0].target.name for j in jobs if j[3] is checked)
+            where = ", ".join(str(j.planned.target) for j in jobs if j.key == job.key)
+            label = ", ".join(j.planned.target.name for j in jobs if j.key == job.key)
             with check_progress(label, progress, _progress_delay(started)):
-                reports[key] = guard(checked, layers, allow_invalid=allow, what=where,
-                                     reference=None if derived else spec.model, wavelengths=spec.wavelengths,
-                                     subject=f"{spec.path.name} on "
-                                             f"{grid.describe() if grid is not None else 'its own grid'}")
-        for m, options, payload, checked in jobs:
+                reports[job.key] = job.check(spec, layers, subject=_subject(spec, job), allow_invalid=allow,
+                                             what=where)
+        for job in jobs:
+            m = job.planned
             with write_progress(m.target.name, progress, _progress_delay(started)):
-                formats.write_prepared(m.format, payload, m.target, overwrite=overwrite, options=options)
+                formats.write_prepared(m.format, job.payload, m.target, overwrite=overwrite, options=job.options)
             result.written.append(m.target)
-            result.tables.append(payload if hasattr(payload, "grid") else checked)
-            result.reports.append(reports[id(checked)])
+            result.tables.append(job.payload if hasattr(job.payload, "grid") else job.checked)
+            result.reports.append(reports[job.key])
     return result
+
+
+@dataclass
+class _Job:
+    """One output ready to write: what the format writes (``payload``) and what the checks
+    judge (``checked``: the values as stored, :func:`brdftab.formats.stored`), or why the stored
+    values cannot be read back at all (``unstorable``)."""
+
+    planned: Planned
+    options: dict
+    payload: object
+    checked: object
+    unstorable: object = None
+
+    @property
+    def key(self):
+        return id(self.unstorable if self.unstorable is not None else self.checked)
+
+    def check(self, spec, layers, subject, allow_invalid=True, what=""):
+        from .checks import unstorable_report
+
+        if self.unstorable is not None:
+            return unstorable_report(self.unstorable, layers, allow_invalid=allow_invalid, what=what, subject=subject)
+        # the spec's model, unless the format tabulated something derived from it (MERL's
+        # φh average or symmetrization): then the table's provenance names what it holds
+        made_from = getattr(self.checked, "ds", None)
+        derived = made_from is not None and made_from.attrs.get("model") != spec.model.name
+        return guard(self.checked, layers, allow_invalid=allow_invalid, what=what,
+                     reference=None if derived else spec.model, wavelengths=spec.wavelengths, subject=subject)
+
+
+def _jobs(spec, planned, provenance, progress) -> list:
+    """Every planned output prepared: the model tabulated once per target grid (formats with
+    their own ``prepare``, like the RGL writer, are given the model), then each format's
+    payload and the BRDF its file will hold."""
+    from .table import Table
+
+    jobs = []
+    for grid, members in _groups(planned):
+        needs_table = any(m.format.prepare is None for m in members)
+        if needs_table:
+            source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance)
+        else:
+            source = spec.model
+        for m in members:
+            options = _with_wavelengths(m, spec.wavelengths)
+            unstorable = None
+            with formats.naming(m.target):
+                payload = formats.prepare(m.format, source, m.grid, options)
+                try:
+                    checked = formats.stored(m.format, payload, options)
+                except formats.NotStorable as exc:
+                    checked, unstorable = None, exc
+            if isinstance(checked, Table):
+                payload = checked  # the samples as the file holds them: written, stamped and checked
+            elif checked is None and unstorable is None:
+                checked = payload if isinstance(payload, BRDF) else source
+            jobs.append(_Job(m, options, payload, checked, unstorable))
+    return jobs
+
+
+def _subject(spec, job) -> str:
+    grid = getattr(job.checked, "grid", None) if job.checked is not None else job.planned.grid
+    return f"{spec.path.name} on {grid.describe() if grid is not None else 'its own grid'}"
+
+
+def _check_memory(spec: Spec, planned) -> None:
+    """Refuse up front a run whose tables and checks would not fit in memory (not after the
+    tabulation, when the checks run out of it)."""
+    layout = spec.model.layout
+    n = layout.n_out(layout.resolve(spec.wavelengths))
+    tables = [(grid, n) for grid, members in _groups(planned)
+              if grid is not None and any(m.format.prepare is None for m in members)]
+    where = ", ".join(g.describe() for g, _ in tables)
+    check_checked_memory(tables, f"{spec.path.name}: tabulating and checking {where} x {n} channels")
 
 
 def _with_wavelengths(m, wavelengths) -> dict:
@@ -169,21 +230,19 @@ def _progress_delay(started: float) -> float:
 
 
 def validate(spec: Spec, checks: dict | None = None, progress: bool | None = None) -> list:
-    """Check what :func:`run` would export for ``spec``, writing nothing: the model tabulated
-    on each target grid (or the model itself for formats that sample it), checked with the
-    spec's ``[validation]`` and ``checks`` (command-line layer). Returns one
-    :class:`~brdftab.checks.Report` per target grid."""
-    from .checks import run_checks
-
+    """Check what :func:`run` would export for ``spec``, writing nothing: each output prepared
+    as :func:`run` prepares it (the model tabulated on each target grid, or sampled by the
+    format itself) and judged as its file would store it, with the spec's ``[validation]`` and
+    ``checks`` (command-line layer). Returns one :class:`~brdftab.checks.Report` per distinct
+    stored BRDF."""
     config = {k: v for k, v in spec.validation.items() if k != "allow_invalid"}
     provenance = {"spec_sha256": spec.sha256, "spec_file": spec.path.name}
-    reports = []
-    for grid, members in _groups(plan(spec)):
-        if any(m.format.prepare is None for m in members):
-            source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance)
-        else:
-            source = spec.model
-        where = grid.describe() if grid is not None else "its own grid"
-        reports.append(run_checks(source, [config, checks or {}], reference=spec.model, wavelengths=spec.wavelengths,
-                                  subject=f"{spec.path} ({where})"))
-    return reports
+    reports = {}
+    planned = plan(spec)
+    _check_memory(spec, planned)
+    for job in _jobs(spec, planned, provenance, progress):
+        if job.key not in reports:
+            grid = getattr(job.checked, "grid", None) if job.checked is not None else job.planned.grid
+            where = grid.describe() if grid is not None else "its own grid"
+            reports[job.key] = job.check(spec, [config, checks or {}], subject=f"{spec.path} ({where})")
+    return list(reports.values())

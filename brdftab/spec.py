@@ -48,8 +48,8 @@ import numpy as np
 
 from .brdf import BRDF
 from .errors import BrdftabError, ParameterError, SpecError
-from .grids import Grid, check_grid, grid_from_config
-from .params import suggest
+from .grids import Grid, check_grid, grid_from_config, grid_wavelengths
+from .params import _show, as_float, suggest
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -234,9 +234,10 @@ def build_model(table, where: str, path) -> BRDF:
                 raise _fail(path, f"{where}.{key}", f"expected one or more [[{where}.{key}]] tables")
             value = [build_model(v, f"{where}.{key}[{i}]", path) for i, v in enumerate(value)]
         elif p.angle:
-            if isinstance(value, bool) or not isinstance(value, (int, float)):
-                raise _fail(path, f"{where}.{key}", f"expected an angle in degrees, got {value!r}")
-            value = math.radians(value)
+            deg = None if isinstance(value, bool) or not isinstance(value, (int, float)) else as_float(value)
+            if deg is None:
+                raise _fail(path, f"{where}.{key}", f"expected an angle in degrees, got {_show(value)}")
+            value = math.radians(deg)
         elif hasattr(p.kind_object, "from_spec"):  # a file parameter: relative to the spec's folder
             value = p.kind_object.from_spec(p, value, Path(path).parent)
         kwargs[p.name] = value
@@ -261,13 +262,10 @@ def _wavelengths(grid_cfg, model, path):
         if model.spectral and model.wavelengths is None:
             raise _fail(path, "grid.wavelengths_nm", "the model is spectral: list the wavelengths to sample")
         return None
-    raw = grid_cfg["wavelengths_nm"]
-    if (not isinstance(raw, list) or not raw
-            or any(isinstance(x, bool) or not isinstance(x, (int, float)) for x in raw)):
-        raise _fail(path, "grid.wavelengths_nm", "expected a non-empty list of wavelengths in nm")
-    lam = np.asarray(raw, float)
-    if not np.all(np.isfinite(lam)) or np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
-        raise _fail(path, "grid.wavelengths_nm", "expected positive wavelengths in increasing order")
+    try:
+        lam = grid_wavelengths(grid_cfg)
+    except ParameterError as exc:
+        raise _fail(path, "grid.wavelengths_nm", exc.detail) from None
     if not model.spectral and not model.layout.grey:
         raise _fail(path, "grid.wavelengths_nm", f"the model has channels {list(model.channels)}, not a "
                     "spectrum; remove wavelengths_nm or give its parameters as spectra")

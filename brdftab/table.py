@@ -67,7 +67,7 @@ from .channels import Layout
 from .errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
 from .grids import Grid, check_grid, grid_from_dataset
 
-__all__ = ["Table", "tabulate", "make_table", "check_memory", "OUTSIDE_MODES", "DEFAULT_CHUNK", "DIRECTION_CONVENTION",
+__all__ = ["Table", "tabulate", "make_table", "check_memory", "check_checked_memory", "OUTSIDE_MODES", "DEFAULT_CHUNK", "DIRECTION_CONVENTION",
            "PHI_CONVENTION", "SPECULAR_VAR", "SPECULAR_DIM", "SPECULAR_THETA_I", "carries_specular_delta",
            "warn_specular_dropped", "set_albedo_curve", "ALBEDO_VAR", "ALBEDO_DIM", "ALBEDO_WHITE_SKY",
            "LABEL_SUFFIX"]
@@ -1035,6 +1035,12 @@ def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, pro
 #: temporaries (~30 MiB at the default chunk size).
 TABULATE_PEAK = {8: 1.25, 4: 1.7}
 CHUNK_OVERHEAD = 64 << 20
+#: Peak memory of tabulating a float64 table and then running the default checks on it, relative
+#: to the table: measured (``benchmarks/bench_check_memory.py``, peak resident memory) 5.3x for
+#: RGB on a Rusinkiewicz grid, 6.8x grey on a Rusinkiewicz grid, 8.8x grey on a spherical grid
+#: (the reciprocity and bilateral checks pair every sample with its mirror image). ``tabulate``
+#: runs refuse up front what the checks could not finish (:func:`check_checked_memory`).
+CHECKED_PEAK = 9.0
 
 
 def available_memory() -> int | None:
@@ -1060,6 +1066,17 @@ def check_memory(nbytes: float, what: str, peak: float = 1.25) -> None:
     if have is not None and need > have:
         raise BrdftabError(f"{what} needs about {need / 2**30:.3g} GiB of memory ({nbytes / 2**30:.3g} GiB of samples);"
                            f" only {have / 2**30:.3g} GiB is available; use a coarser grid or fewer channels")
+
+
+def check_checked_memory(tables, what: str) -> None:
+    """Refuse, before any tabulation, a run that tabulates float64 tables of ``tables``
+    ``(grid, n channels)`` pairs, keeps them all, and checks each: the tables together plus
+    the checks' peak on the largest (:data:`CHECKED_PEAK`) must fit the memory available now."""
+    sizes = [float(grid.size) * n * 8 for grid, n in tables]
+    if not sizes:
+        return
+    total = sum(sizes) + max(sizes) * (CHECKED_PEAK - 1.0)
+    check_memory(sum(sizes), what, peak=total / sum(sizes))
 
 
 def _check_memory(grid: Grid, n: int, dtype) -> None:

@@ -630,3 +630,28 @@ def test_info_of_a_table_naming_no_registered_model(tmp_path):
     brdftab.save(brdftab.models.create("lambert", albedo=0.3), path)
     r = CliRunner().invoke(main, ["info", str(path)])
     assert r.exit_code == 0 and "model:       unknown" in r.output, r.output
+
+
+def test_path_that_is_not_utf8_is_one_line_or_works(tmp_path):
+    """POSIX names may hold any bytes: where the format's library takes only UTF-8 paths
+    (netCDF/HDF5, OpenEXR) the path is refused up front in one line, exit 2, nothing created;
+    formats brdftab writes itself take the name as it is."""
+    from _cli import names
+
+    one_error, run, spec = _one_error, _run, _spec(tmp_path)
+    folder = tmp_path / os.fsdecode(b"out\xff")
+    proc = run("tabulate", spec, "--out", folder)
+    one_error(proc.stderr, proc.returncode, "out\\xff/out.nc", "netcdf", "valid UTF-8")
+    assert names(tmp_path) == [spec.name]
+    table = tmp_path / "t.nc"
+    assert run("tabulate", spec).returncode == 0 and (tmp_path / "out.nc").exists()
+    (tmp_path / "out.nc").rename(table)
+    for ext in ("nc", "exr"):
+        proc = run("convert", table, tmp_path / os.fsdecode(b"t\xff." + ext.encode()))
+        one_error(proc.stderr, proc.returncode, f"t\\xff.{ext}", "valid UTF-8")
+        proc = run("info", tmp_path / os.fsdecode(b"t\xff." + ext.encode()))
+        assert proc.returncode == 2
+    assert names(tmp_path) == sorted([spec.name, table.name])
+    merl = tmp_path / os.fsdecode(b"t\xff.binary")
+    brdftab.save(models.create("lambert", albedo=0.5), merl)
+    assert brdftab.open(merl).eval([0, 0, 1], [0.6, 0, 0.8])[0] == pytest.approx(0.5 / math.pi, rel=1e-6)

@@ -23,8 +23,8 @@ from brdftab.integrate import directional_albedo
 N_CONFIGS = 6
 _ROOT = Path(__file__).resolve().parents[1]
 #: Coefficient files for parameters of kind zernike-coefficients.
-_COEFFICIENT_FILES = (_ROOT / "specs" / "ptfe-synthetic.coeff.csv",
-                      _ROOT.parent / "shared" / "data" / "ptfe" / "PTFE.coeff.csv")
+_COEFFICIENT_FILES = (_ROOT / "tests" / "data" / "zernike-synthetic.coeff.csv",
+                      _ROOT / "data" / "ptfe" / "PTFE.coeff.csv")
 
 
 def _draw_value(p: Param, rng, depth):
@@ -49,7 +49,7 @@ def _draw_value(p: Param, rng, depth):
         return _leaf(rng)
     if p.kind == "brdfs":
         return [_leaf(rng) for _ in range(int(rng.integers(1, 3)))]
-    if p.kind == "zernike-coefficients":  # the shipped synthetic file or Germer's PTFE fit (shared data)
+    if p.kind == "zernike-coefficients":  # a synthetic file or Germer's PTFE fit
         return str(_COEFFICIENT_FILES[int(rng.integers(len(_COEFFICIENT_FILES)))])
     raise AssertionError(f"the contract test cannot draw parameter kind {p.kind!r}: teach it")
 

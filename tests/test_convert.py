@@ -112,8 +112,11 @@ def test_rusinkiewicz_to_merl_reports_resampling(rusi_nc, tmp_path):
 
 
 def test_resampling_figures_as_json(rusi_nc, tmp_path):
+    # so coarse a grid misrepresents the source beyond the bound: written only when allowed
+    refused = _cli("convert", rusi_nc, tmp_path / "r.nc", "--grid", "{type = 'rusinkiewicz', n_theta_h = 20}")
+    assert refused.exit_code == 1 and "misrepresents" in refused.stderr and not (tmp_path / "r.nc").exists()
     result = _cli("convert", rusi_nc, tmp_path / "r.nc", "--grid", "{type = 'rusinkiewicz', n_theta_h = 20}",
-                  "--json")
+                  "--json", "--allow-invalid")
     assert result.exit_code == 0, result.stderr
     data = json.loads(result.stdout)
     assert data["resampled"] is True and data["format"] == "netcdf"
@@ -499,3 +502,19 @@ def test_a_table_converted_from_a_merl_file_records_it(tmp_path):
     assert attrs["history"].splitlines() == [
         f"{attrs['created']} brdftab {brdftab.__version__}: converted paint.binary (sha256 {digest}) to paint.nc, "
         "copied"]
+
+
+def test_resampling_bound_is_met_by_a_measured_file(tmp_path):
+    """The default conversion of a measured-like RGL file to netCDF stays inside
+    convert.RESAMPLING_BOUND (median and 95th percentile at θ ≤ 80°), so the bound refuses only
+    conversions that misrepresent their source."""
+    from _measured import measured_bsdf
+
+    from brdftab.convert import RESAMPLING_BOUND, convert
+
+    measured_bsdf(tmp_path / "m.bsdf")
+    result = convert(tmp_path / "m.bsdf", tmp_path / "m.nc", progress=False)
+    d = result.difference
+    print(f"measured-like .bsdf -> netCDF: median {100 * d.median_rel:.2f} %, p95 {100 * d.p95_rel:.2f} %")
+    assert d.median_rel < RESAMPLING_BOUND["median"] and d.p95_rel < RESAMPLING_BOUND["p95"]
+    assert not d.exceeds()

@@ -383,3 +383,21 @@ def test_import_and_other_formats_work_without_openexr(tmp_path):
     assert "'exr'" in lines[0]
     assert lines[1].startswith("ERR") and "OpenEXR" in lines[1] and "not installed" in lines[1]
     assert (tmp_path / "a.nc").exists() and not (tmp_path / "a.exr").exists()
+
+
+def test_values_beyond_float32_fail_finite_as_stored(tmp_path):
+    """EXR pixels are float32: a table finite in float64 but beyond float32 is refused by the
+    finite check (exit 1, nothing written), counting the samples that would be infinite."""
+    from _cli import run
+
+    big = models.create("scale", factor=2e40, term=models.create("lambert", albedo=0.5))
+    t = tabulate(big, RusinkiewiczGrid(6, 5, 8), progress=False)
+    src = tmp_path / "big.nc"
+    brdftab.save(t, src)
+    v = np.asarray(t.values)
+    over = int(np.count_nonzero(v > np.finfo(np.float32).max))
+    assert 0 < over < v.size
+    r = run("convert", src, tmp_path / "big.exr", "--level", "energy=off")
+    assert r.returncode == 1, r.stderr
+    assert f"finite: {over} of {v.size} samples are NaN or infinite (0 NaN, {over} infinite)" in r.stderr
+    assert not (tmp_path / "big.exr").exists()

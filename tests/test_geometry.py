@@ -138,3 +138,19 @@ def test_merl_reference_indices_agree():
     assert np.array_equal(np.floor(90 * np.sqrt(th2 / (np.pi / 2))).astype(int), i)
     assert np.array_equal(np.floor(td2 / (np.pi / 2) * 90).astype(int), j)
     assert np.array_equal(np.floor(pd2 / np.pi * 180).astype(int), k)
+
+
+@pytest.mark.parametrize("scale", [1e155, 1e300, 1e-160, 1e-320])
+def test_huge_and_tiny_finite_directions_keep_their_direction(scale):
+    """|v|² of [1e155, 0, 1e155] overflows (and of [1e-320, 0, 1e-320] underflows): the
+    direction is still 45° from the normal, normalized and evaluated like [1, 0, 1]."""
+    from brdftab import models
+
+    v = np.array([scale, 0.0, scale])
+    assert np.allclose(normalize(v), [np.sqrt(0.5), 0.0, np.sqrt(0.5)], rtol=0, atol=1e-15)
+    ggx = models.create("microfacet", alpha=0.3)
+    wo = np.array([-0.3, 0.2, 0.9])
+    expected = ggx.eval([1.0, 0.0, 1.0], wo)
+    assert expected[0] > 0.1
+    assert np.allclose(ggx.eval(v, wo), expected, rtol=1e-14, atol=0)
+    assert np.allclose(ggx.eval(wo, v), ggx.eval(wo, [1.0, 0.0, 1.0]), rtol=1e-14, atol=0)

@@ -320,6 +320,75 @@ def test_resampled_table_without_data_there_gives_missing_markers(tmp_path):
     assert brdftab.open(path).ds["brdf"].attrs["valid_min"] == 0.0
 
 
+def _noisy_merl_table(count=500, seed=7):
+    """A measured Lambert table on the MERL grid with ``count`` small negative noise samples
+    (not declared missing, as a netCDF measurement holds them); returns (table, mask, lowest)."""
+    lam = models.create("lambert", albedo=[0.2, 0.4, 0.6])
+    table = tabulate(lam, merl_grid(), progress=False)
+    values = np.array(table.values)
+    rng = np.random.default_rng(seed)
+    flat = rng.choice(values.size, count, replace=False)
+    values.reshape(-1)[flat] = -rng.uniform(1e-5, 3e-3, count)
+    ds = table.ds.copy()
+    ds["brdf"] = xr.Variable(ds["brdf"].dims, values, attrs=ds["brdf"].attrs)
+    ds.attrs["origin"] = "measured"
+    mask = values < 0
+    return Table(ds), mask, float(values[mask].min())
+
+
+def test_negative_noise_is_written_as_zero_not_as_missing_markers(tmp_path):
+    """MERL reads negative values as 'no measurement': noise below 0 is written as 0 (one warning
+    with the count and the lowest value), so nothing reads back as missing."""
+    table, mask, lowest = _noisy_merl_table()
+    path = tmp_path / "noisy.binary"
+    with pytest.warns(UserWarning) as caught:
+        brdftab.save(table, path)
+    lines = [str(w.message) for w in caught if "negative" in str(w.message)]
+    assert len(lines) == 1, lines
+    assert f"{int(mask.sum())} of {mask.size} samples are negative (lowest {lowest:.4g} sr-1): written as 0" in lines[0]
+    raw = raw_planes(path)
+    planes = np.moveaxis(np.asarray(table.values), -1, 0)
+    assert not (raw < 0).any()  # no missing markers
+    for c in range(3):
+        assert np.all(raw[c][mask[..., c]] == 0.0)
+        np.testing.assert_allclose(raw[c][~mask[..., c]] * REF_SCALE[c], planes[c][~mask[..., c]], rtol=1e-15)
+    assert brdftab.open(path).missing is None
+
+
+def test_negative_noise_can_be_kept_as_markers(tmp_path):
+    table, mask, _ = _noisy_merl_table(count=50)
+    path = tmp_path / "kept.binary"
+    brdftab.save(table, path, negative="missing")
+    assert int(np.asarray(brdftab.open(path).missing).sum()) == int(mask.sum())
+
+
+def test_declared_missing_samples_stay_markers(tmp_path):
+    """A MERL file's own markers are missing data, not noise: written back unchanged (no warning)."""
+    raw = np.full((3, 90, 90, 180), 600.0)
+    raw[:, 70:] = -1.0
+    table = brdftab.open(write_raw(tmp_path / "m.binary", raw))
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        brdftab.save(table, tmp_path / "back.binary")
+    assert (tmp_path / "back.binary").read_bytes() == (tmp_path / "m.binary").read_bytes()
+
+
+def test_measured_rgl_file_with_noise_converts_to_merl_without_missing_bins(tmp_path):
+    """A measured-like RGL file with negative samples, resampled onto the MERL grid: the noise
+    that interpolates below 0 is written as 0, not as markers that read back as missing."""
+    from _measured import measured_bsdf
+
+    measured_bsdf(tmp_path / "meas.bsdf", negatives=2000)
+    source = brdftab.open(tmp_path / "meas.bsdf")
+    with pytest.warns(UserWarning, match=r"\d+ of 4374000 samples are negative \(lowest -[0-9.e-]+ sr-1\): written "
+                                         "as 0"):
+        brdftab.save(source, tmp_path / "meas.binary", symmetrize=True)
+    assert not (raw_planes(tmp_path / "meas.binary") < 0).any()
+    assert brdftab.open(tmp_path / "meas.binary").missing is None
+
+
 # --- what MERL cannot hold -------------------------------------------------------------------
 class _Anisotropic(BRDF):
     """f = c (1 + 0.5 (hx² − hy²)) with h the unnormalized half vector over its length²: the
@@ -461,3 +530,20 @@ def test_refusal_on_the_command_line_is_one_line(tmp_path):
     lines = [line for line in result.output.splitlines() if line.strip()]
     assert len(lines) == 1 and "anisotropic" in lines[0] and "phi_h_average" in lines[0], result.output
     assert list(tmp_path.iterdir()) == [spec]
+
+
+def test_a_grid_the_format_does_not_store_is_said_to_be_ignored(tmp_path):
+    """MERL has its own grid: ``save(..., grid=other)`` writes the MERL grid and says so."""
+    import warnings
+
+    from brdftab.errors import BrdftabWarning
+
+    lam = models.create("lambert", albedo=0.5)
+    with pytest.warns(BrdftabWarning, match=r"x.binary: the merl format stores its own grid, merl .*; the grid given "
+                                             r"\(rusinkiewicz theta_h\[4\] x theta_d\[4\] x phi_d\[8\]\) is not used"):
+        written = brdftab.save(lam, tmp_path / "x.binary", grid=RusinkiewiczGrid(4, 4, 8))
+    assert written.grid.equals(merl_grid())
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the MERL grid itself, or no grid: nothing to say
+        brdftab.save(lam, tmp_path / "y.binary", grid="merl")
+        brdftab.save(lam, tmp_path / "z.binary")

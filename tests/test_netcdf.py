@@ -464,3 +464,47 @@ def test_netcdf_writer_reports_steps_and_writes_the_same_values(tmp_path, monkey
     with xr.open_dataset(tmp_path / "a.nc") as ds:
         assert ds["brdf"].dtype == np.float32 and ds["brdf"].attrs["units"] == "sr-1"
         assert "_FillValue" not in ds["brdf"].encoding or ds["brdf"].encoding["_FillValue"] is None
+
+
+def _beyond_float32_table(tmp_path):
+    """A float64 netCDF table whose values above the horizon exceed float32 (finite in float64)."""
+    big = models.create("scale", factor=2e40, term=models.create("lambert", albedo=0.5))
+    t = tabulate(big, RusinkiewiczGrid(6, 5, 8), progress=False)
+    path = tmp_path / "big.nc"
+    brdftab.save(t, path)
+    v = np.asarray(t.values)
+    return path, int(np.count_nonzero(v > np.finfo(np.float32).max)), v.size
+
+
+def test_convert_to_float32_judges_the_stored_values(tmp_path):
+    """Converted with dtype = float32, values beyond float32 are stored as inf: the output fails
+    the finite check (exit 1, nothing written) although the float64 input is finite."""
+    from _cli import run
+
+    src, over, total = _beyond_float32_table(tmp_path)
+    assert over > 0
+    r = run("convert", src, tmp_path / "f32.nc", "-o", "dtype=float32", "--level", "energy=off")
+    assert r.returncode == 1, r.stderr
+    assert f"finite: {over} of {total} samples are NaN or infinite (0 NaN, {over} infinite)" in r.stderr
+    assert "as stored in float32" in r.stderr and not (tmp_path / "f32.nc").exists()
+    r = run("convert", src, tmp_path / "f32.nc", "-o", "dtype=float32", "--level", "energy=off", "--allow-invalid")
+    assert r.returncode == 0, r.stderr
+    back = brdftab.open(tmp_path / "f32.nc")
+    assert back.ds.attrs["validation_passed"] == 0 and np.isinf(back.values).sum() == over
+    r = run("convert", src, tmp_path / "f64.nc", "--level", "energy=off")  # float64 holds them
+    assert r.returncode == 0, r.stderr
+
+
+def test_duplicate_channel_names_are_refused_on_read(tmp_path):
+    """Three channels all called R: which one would ``eval --json`` report? Refused, naming it."""
+    path = tmp_path / "rrr.nc"
+    brdftab.save(models.create("lambert", albedo=[0.2, 0.5, 0.8]), path, grid=RusinkiewiczGrid(3, 3, 4))
+    with netCDF4.Dataset(path, "a") as nc:
+        nc["channel_name"][:] = netCDF4.stringtochar(np.array(["R", "G", "R"], dtype="S1"))
+    with pytest.raises(FormatError, match=r"rrr.nc: .*duplicate channel name 'R' \(channels R, G, R\)"):
+        brdftab.open(path)
+    proc = subprocess.run([sys.executable, "-m", "brdftab", "eval", str(path), "--wi-deg", "10,0", "--wo-deg",
+                           "10,180", "--json"], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and proc.stdout == "", proc
+    assert proc.stderr.splitlines() == [f"brdftab: error: {path}: channels: duplicate channel name 'R' (channels R, "
+                                        "G, R): each channel needs its own name"]

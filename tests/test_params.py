@@ -44,3 +44,29 @@ def test_spectral_terms_keep_their_common_range():
         models.create("microfacet", alpha=0.3, fresnel="conductor",
                       n={"wavelengths_nm": [400, 500], "values": [1.0, 1.0]},
                       k={"wavelengths_nm": [600, 700], "values": [2.0, 2.0]})
+
+
+HUGE = 9 * 10 ** 400  # an integer TOML and Python hold but float64 cannot
+
+
+@pytest.mark.parametrize("name, kwargs, key", [
+    ("microfacet", {"alpha": HUGE}, "alpha"),                                   # float
+    ("pyramid-microfacet", {"max_bounces": HUGE}, "max_bounces"),               # int
+    ("pyramid-microfacet", {"max_bounces": -HUGE}, "max_bounces"),
+    ("pyramid-microfacet", {"phi0": HUGE}, "phi0"),                             # float, an angle
+    ("lambert", {"albedo": [0.5, HUGE, 0.5]}, "albedo"),                        # channel
+])
+def test_integers_beyond_float_range_are_a_parameter_error(name, kwargs, key):
+    with pytest.raises(ParameterError) as info:
+        models.create(name, **kwargs)
+    assert info.value.key == key and "expected" in info.value.detail, str(info.value)
+    assert len(str(info.value)) < 300  # the value is shortened, not printed in full
+
+
+def test_float_lists_refuse_integers_beyond_float_range():
+    from brdftab.params import Param
+
+    p = Param("xs", "floats", "numbers", minimum=0.0)
+    assert p.convert([1, 2]) == (1.0, 2.0)
+    with pytest.raises(ParameterError, match="expected finite numbers >= 0"):
+        p.convert([1, HUGE])

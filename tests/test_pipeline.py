@@ -88,3 +88,96 @@ def test_each_output_tabulates_the_model_on_its_own_grid(tmp_path, merl_grid_for
     assert np.allclose(stored, expected, rtol=1e-12, atol=0)
     rus = brdftab.open(tmp_path / "rus.nc")
     assert rus.grid.shape == (30, 30, 60)
+
+
+# -- checks judge the values as stored -------------------------------------------------------------
+
+#: A model whose values are finite in float64 but beyond float32's range above the horizon.
+BEYOND_FLOAT32 = ('[model]\nname = "scale"\nfactor = 2e40\n[model.term]\nname = "lambert"\nalbedo = 0.5\n'
+                  '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 6\nn_theta_d = 5\nn_phi_d = 8\n'
+                  '[validation.energy]\nlevel = "off"\n')
+
+
+def _beyond_float32(tmp_path, output):
+    path = tmp_path / "big.toml"
+    path.write_text(BEYOND_FLOAT32 + f"[[output]]\n{output}\n")
+    return path
+
+
+def _overflowing_samples(spec_path):
+    """How many samples of the spec's model at its grid nodes exceed the largest float32 (float64 values)."""
+    from brdftab.table import tabulate
+
+    s = load_spec(spec_path)
+    v = np.asarray(tabulate(s.model, s.grid).values, np.float64)
+    return int(np.count_nonzero(np.abs(v) > np.finfo(np.float32).max)), v.size
+
+
+@pytest.mark.parametrize("output", ['path = "big.nc"\ndtype = "float32"', 'path = "big.exr"',
+                                    'path = "big.bsdf"\nresolution = 8\ntheta_i_deg = [0, 40, 80]'],
+                         ids=["netcdf-float32", "exr", "rgl"])
+def test_values_beyond_the_storage_type_fail_finite_and_nothing_is_written(tmp_path, output):
+    from _cli import run as cli_run
+
+    spec = _beyond_float32(tmp_path, output)
+    r = cli_run("tabulate", spec)
+    assert r.returncode == 1, r.stderr
+    error = [line for line in r.stderr.splitlines() if line.startswith("brdftab: error:")]
+    assert len(error) == 1 and "refusing to export" in error[0] and "finite:" in error[0], r.stderr
+    assert "float32" in error[0]
+    if "bsdf" not in output:  # a table: every sample beyond float32 is counted
+        over, total = _overflowing_samples(spec)
+        assert over > 0
+        assert f"finite: {over} of {total} samples are NaN or infinite (0 NaN, {over} infinite)" in error[0]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["big.toml"]
+
+
+def test_float64_output_of_the_same_values_passes(tmp_path):
+    result = run(load_spec(_beyond_float32(tmp_path, 'path = "big.nc"')), progress=False)
+    assert result.report.passed and result.report.get("finite").status == "pass"
+    assert np.isfinite(brdftab.open(tmp_path / "big.nc").values).all()
+
+
+def test_written_anyway_the_file_records_the_failure_a_later_validate_finds(tmp_path):
+    import json
+
+    from _cli import run as cli_run
+
+    spec = _beyond_float32(tmp_path, 'path = "big.nc"\ndtype = "float32"')
+    r = cli_run("tabulate", spec, "--allow-invalid")
+    assert r.returncode == 0, r.stderr
+    attrs = brdftab.open(tmp_path / "big.nc").ds.attrs
+    assert attrs["validation_passed"] == 0 and attrs["validation_summary"].startswith("finite: ")
+    stored = json.loads(attrs["validation_report"])
+    over, _ = _overflowing_samples(spec)
+    assert stored["checks"][0]["name"] == "finite" and stored["checks"][0]["figure"] == over
+    v = cli_run("validate", tmp_path / "big.nc", "--level", "energy=off", "--json")
+    assert v.returncode == 1
+    later = json.loads(v.stdout)["reports"][0]
+    assert later["counts"] == stored["counts"]
+    assert {c["name"]: c["status"] for c in later["checks"]} == {c["name"]: c["status"] for c in stored["checks"]}
+
+
+@pytest.mark.parametrize("verb", ["run", "validate"])
+def test_memory_check_up_front_covers_the_checks(tmp_path, monkeypatch, verb):
+    """Memory for the table (1.25x) but not for the checks (up to 8.8x measured): refused before
+    anything is tabulated, naming the grid, instead of running out of memory in the checks."""
+    from brdftab import pipeline, table as table_mod
+    from brdftab.errors import BrdftabError
+
+    spec_path = tmp_path / "s.toml"
+    spec_path.write_text('[model]\nname = "lambert"\nalbedo = [0.2, 0.5, 0.8]\n[grid]\ntype = "rusinkiewicz"\n'
+                         'n_theta_h = 20\nn_theta_d = 10\nn_phi_d = 16\n[[output]]\npath = "t.nc"\n')
+    spec = load_spec(spec_path)
+    nbytes = 20 * 10 * 16 * 3 * 8
+    monkeypatch.setattr(table_mod, "available_memory", lambda: table_mod.CHUNK_OVERHEAD + 3 * nbytes)
+    monkeypatch.setattr(pipeline, "tabulate", lambda *a, **k: pytest.fail("tabulated before the memory check"))
+    with pytest.raises(BrdftabError, match=r"s.toml: tabulating and checking rusinkiewicz theta_h\[20\] x theta_d\[10\]"
+                                           r" x phi_d\[16\] x 3 channels needs about"):
+        getattr(pipeline, verb)(spec)
+    assert not (tmp_path / "t.nc").exists()
+    # with the measured peak available, the same run goes through
+    monkeypatch.setattr(table_mod, "available_memory",
+                        lambda: table_mod.CHUNK_OVERHEAD + table_mod.CHECKED_PEAK * nbytes + 1)
+    monkeypatch.setattr(pipeline, "tabulate", table_mod.tabulate)
+    getattr(pipeline, verb)(spec, progress=False)

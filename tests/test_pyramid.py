@@ -1,6 +1,8 @@
 """The pyramid model (``brdftab.models.pyramid``, de Haas 2024 corrected) against identities,
 quadrature written here, and the ray tracer of a random array of overlapping pyramids
-(``tests/_pyramid_tracer.py``).
+(``brdftab.models.pyramid_tracer``). The tracer runs here on fields and rays of seeds of their
+own (0 … 7, 100 … 107), independent of those it made the traced walk's table with (1000 …,
+100 000 …).
 
 Incidence cases of the thesis: normal incidence, and 45° elevation with the source in the
 azimuth of a face normal (0°) and 25° from it (directions point toward the source).
@@ -18,13 +20,14 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from _pyramid_tracer import NORMALS, TAN_P, PyramidField, fractions
 from brdftab import models
 from brdftab.errors import ParameterError
 from brdftab.geometry import sph_to_vec
 from brdftab.integrate import directional_albedo
 from brdftab.models import components as C
+from brdftab.models import pyramid_walk
 from brdftab.models.pyramid import FACET_WEIGHT, THETA_P, _lobe, _walk, facet_normals
+from brdftab.models.pyramid_tracer import NORMALS, TAN_P, PyramidField, fractions, sequence_codes
 from brdftab.spec import load_spec
 
 SPECS = Path(__file__).resolve().parent.parent / "specs"

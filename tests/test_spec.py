@@ -80,6 +80,20 @@ path = "spectral.nc"
     assert np.allclose(t.eval(wi, wo), spec.model.eval(wi, wo, [450, 550, 650]), rtol=1e-12)
 
 
+def test_wavelengths_take_ranges_like_angle_lists(tmp_path):
+    p = write(tmp_path, """
+[model]
+name = "lambert"
+albedo = {wavelengths_nm = [380, 780], values = [0.2, 0.6]}
+[grid]
+type = "rusinkiewicz"
+wavelengths_nm = [380, {start = 400, stop = 700, step = 100}, {start = 750, stop = 780, num = 2}]
+[[output]]
+path = "spectral.nc"
+""")
+    assert load_spec(p).wavelengths.tolist() == [380, 400, 500, 600, 700, 750, 780]
+
+
 def test_spectral_model_without_wavelengths_uses_its_own(tmp_path):
     p = write(tmp_path, """
 [model]

@@ -145,6 +145,25 @@ CASES = {
     "range-negative-num": (_spec_text(grid=_rusi("theta_h_deg = {start = 0, stop = 10, num = -3}\n")),
                            ["grid.theta_h_deg.num"]),
     "axis-too-many-nodes": (_spec_text(grid=_rusi("n_theta_h = 1000000000\n")), ["grid.n_theta_h"]),
+    # integers of hundreds of digits (TOML has no limit) where an int, an angle or a float goes
+    "n-theta-h-huge-int": (_spec_text(grid=_rusi("n_theta_h = " + "9" * 400 + "\n")),
+                           ["grid.n_theta_h", "whole number", "(too large)"]),
+    "max-bounces-huge-int": (_spec_text(model='[model]\nname = "pyramid-microfacet"\nmax_bounces = -' + "9" * 400
+                                        + "\n"), ["model.max_bounces", "(too large)"]),
+    "angle-key-huge-int": (_spec_text(model='[model]\nname = "pyramid-microfacet"\nphi0_deg = ' + "9" * 400 + "\n"),
+                           ["model.phi0_deg", "expected an angle in degrees"]),
+    "angle-list-huge-int": (_spec_text(grid=_rusi("theta_h_deg = [0, " + "9" * 400 + "]\n")),
+                            ["grid.theta_h_deg", "finite"]),
+    "angle-range-huge-int": (_spec_text(grid=_rusi("theta_h_deg = {start = 0, stop = " + "9" * 400 + ", step = 1}\n")),
+                             ["grid.theta_h_deg.stop", "finite"]),
+    "wavelengths-huge-int": (_spec_text(grid=_rusi("wavelengths_nm = [" + "9" * 400 + "]\n")),
+                             ["grid.wavelengths_nm", "finite"]),
+    "check-angle-huge-int": (_spec_text(extra="[validation.energy]\ntheta_i_max_deg = " + "9" * 400 + "\n"),
+                             ["validation.energy.theta_i_max_deg", "degrees"]),
+    "grid-without-type": (_spec_text(grid="[grid]\nn_theta_h = 4\n"),
+                          ["grid.type", "missing", "rusinkiewicz, merl, spherical"]),
+    "wavelengths-decreasing": (_spec_text(grid=_rusi("wavelengths_nm = [500, {start = 400, stop = 450, num = 2}]\n")),
+                               ["grid.wavelengths_nm", "increase strictly: 500 nm is followed by 400 nm"]),
     "spectrum-infinite-wavelength": (
         _spec_text(model='[model]\nname = "lambert"\nalbedo = {wavelengths_nm = [400, inf], values = [0.1, 0.2]}\n'),
         ["model.albedo", "finite"]),
@@ -168,7 +187,7 @@ CASES = {
 #: Cases also run as a real subprocess (one line on stderr, no traceback).
 SUBPROCESS_CASES = ["unknown-top-level-key", "unknown-model-name", "alpha-string", "theta-h-deg-out-of-range",
                     "invalid-toml", "not-utf8", "missing-output", "grid-type-list", "alpha-huge-int",
-                    "range-tiny-step", "axis-too-many-nodes"]
+                    "range-tiny-step", "axis-too-many-nodes", "n-theta-h-huge-int", "angle-key-huge-int"]
 
 
 def _write_spec(tmp_path: Path, case_id: str) -> Path:
@@ -273,6 +292,8 @@ def test_deeply_nested_spec_is_one_clear_line(tmp_path, text):
 @pytest.mark.parametrize("value, expected", [
     ("30", ["--wi-deg", "'30'", "theta,phi"]),
     ("100,0", ["--wi-deg", "[0, 90]", "100"]),
+    ("90.0000001,0", ["--wi-deg", "[0, 90]", "got 90.0000001"]),
+    ("-1e-9,0", ["--wi-deg", "[0, 90]", "got -1e-9"]),
     ("a,b", ["--wi-deg", "'a,b'"]),
     ("30,0,0", ["--wi-deg", "'30,0,0'"]),
     ("nan,0", ["--wi-deg", "'nan,0'"]),

@@ -6,8 +6,8 @@ Oracles, each independent of the model's code:
   angles θi, θs, φs with Δφ = φs − π, A evaluated on column 3, column 6 as the azimuthal order);
 * the Lambert identity (a single n = m = l = 0 row is f = a / 2π, albedo a / 2);
 * a Gauss–Legendre (cosθo) × midpoint (φo) quadrature written here, beside brdftab's own;
-* Germer's measured f_r,11 of sintered PTFE (``shared/data/ptfe/PTFE.data.csv``) and his fitted
-  coefficients (``PTFE.coeff.csv``), read from the shared folder beside the repository.
+* Germer's measured f_r,11 of sintered PTFE (``data/ptfe/PTFE.data.csv``) and his fitted
+  coefficients (``PTFE.coeff.csv``), shipped in the repository (NIST, public domain).
 """
 
 from __future__ import annotations
@@ -37,8 +37,8 @@ from test_contract import check_contract
 
 REPO = Path(__file__).resolve().parents[1]
 SPEC = REPO / "specs" / "ptfe-zernike.toml"
-SYNTHETIC = REPO / "specs" / "ptfe-synthetic.coeff.csv"
-PTFE = Path(__file__).resolve().parents[2] / "shared" / "data" / "ptfe"
+SYNTHETIC = REPO / "tests" / "data" / "zernike-synthetic.coeff.csv"
+PTFE = REPO / "data" / "ptfe"
 PTFE_COEFF = PTFE / "PTFE.coeff.csv"
 PTFE_DATA = PTFE / "PTFE.data.csv"
 
@@ -379,6 +379,12 @@ BAD_ROWS = [
     ("1, 1, 1, 1, 1, 0, 0, 0.5", "n - l = 1 - 0 is odd"),          # 11: column 5 (k = 1) is not used
     ("1, 2, 2, 1, 1, 1, 0, 0.5", "n - k = 2 - 1 is odd"),          # off 11: column 5 with column 3
     ("1, 2, 1, 2, 1, 1, 0, 0.5", "m - l = 2 - 1 is odd"),          # off 11: column 6 with column 4
+    # orders beyond the documented limit: refused on reading, not tens of GB at evaluation
+    ("1, 1, 20000, 20000, 0, 0, 0, 0.5", "orders above 100 are not supported (n = 20000, m = 20000"),
+    ("1, 1, 0, 0, 0, 102, 0, 0.5", "orders above 100 are not supported (l = 102"),
+    pytest.param("1, 1, " + "2" * 400 + ", 0, 0, 0, 0, 0.5",
+                 "orders above 100 are not supported (n = 22222222... (400 digits)", id="order-of-400-digits"),
+    ("1, 1, 0, 0, 0, 0, 17, 0.5", "power of the wavelength p must lie in -16..16, got 17"),
 ]
 
 
@@ -444,20 +450,41 @@ def _run(*args, cwd=None):
                           cwd=cwd, timeout=120)
 
 
-def test_shipped_spec_tabulates_and_validates(tmp_path):
+def test_shipped_spec_tabulates_germers_ptfe(tmp_path):
     spec = load_spec(SPEC)
-    assert spec.model.coefficients.path == SYNTHETIC.resolve()     # relative to the spec, not the cwd
-    assert (SYNTHETIC.resolve(), "an input file of the model") in [(p.resolve(), w) for p, w in spec.inputs]
+    assert spec.model.coefficients.path == PTFE_COEFF.resolve()    # relative to the spec, not the cwd
+    assert (PTFE_COEFF.resolve(), "an input file of the model") in [(p.resolve(), w) for p, w in spec.inputs]
     out = tmp_path / "out"
     proc = _run("tabulate", SPEC, "--out", out, cwd=tmp_path)      # run from elsewhere
     assert proc.returncode == 0 and proc.stderr == "", proc.stderr
     table = brdftab.open(out / "ptfe-zernike.nc")
     wi, wo = _random_pairs(300, seed=9, theta_max=80.0)
     np.testing.assert_allclose(table.eval(wi, wo), spec.model.eval(wi, wo), rtol=0.02)
+    record = table.parameters["coefficients"]
+    assert Path(record["path"]).resolve() == PTFE_COEFF.resolve()
+    assert record["sha256"] == hashlib.sha256(PTFE_COEFF.read_bytes()).hexdigest()
+    # the table reproduces Germer's measurement about as well as the model does (2.2 % rms log)
+    rows = _measured(0.532)
+    rows = rows[np.abs(rows[:, 1]) <= 60.0]
+    theta_i = np.radians(np.abs(rows[:, 1]))
+    wi = sph_to_vec(theta_i, np.radians(rows[:, 2]) + np.pi)
+    wo = sph_to_vec(np.radians(rows[:, 3]), np.radians(rows[:, 4]))
+    f = table.eval(wi, wo)[:, 0]
+    assert np.sqrt(np.mean(np.log(f / rows[:, 5]) ** 2)) < 0.035
     proc = _run("validate", SPEC, cwd=tmp_path)
     assert proc.returncode == 0 and "FAIL" not in proc.stdout, proc.stdout + proc.stderr
     proc = _run("validate", out / "ptfe-zernike.nc", cwd=tmp_path)   # the model rebuilt from provenance
     assert proc.returncode == 0 and "against zernike-expansion" in proc.stdout, proc.stdout + proc.stderr
+
+
+def test_shipped_ptfe_data_are_germers_files():
+    """The copies in data/ptfe are the published files, byte for byte (SOURCE.md lists their sums)."""
+    listed = re.findall(r"^([0-9a-f]{64})  (\S+)$", (PTFE / "SOURCE.md").read_text(), flags=re.M)
+    assert {name for _, name in listed} == {"PTFE.coeff.csv", "PTFE.532.coeff.csv", "PTFE.633.coeff.csv",
+                                            "PTFE.data.csv"}
+    for digest, name in listed:
+        assert hashlib.sha256((PTFE / name).read_bytes()).hexdigest() == digest, name
+    assert _measured(0.532).shape == (1824, 6)
 
 
 def test_no_output_may_overwrite_the_coefficient_file(tmp_path):
@@ -469,30 +496,3 @@ def test_no_output_may_overwrite_the_coefficient_file(tmp_path):
     result = CliRunner().invoke(main, ["tabulate", str(spec), "--overwrite"])
     assert result.exit_code == 2 and "input file of the model" in result.stderr, result.stderr
     assert coeff.read_bytes() == SYNTHETIC.read_bytes()
-
-
-def test_spec_with_germers_coefficients(tmp_path):
-    # the layout of the checkout: <root>/main/<spec> beside <root>/shared/data/ptfe/PTFE.coeff.csv
-    (tmp_path / "shared").symlink_to(PTFE.parents[1], target_is_directory=True)
-    (tmp_path / "main").mkdir()
-    spec = tmp_path / "main" / "ptfe-germer.toml"
-    text = SPEC.read_text().replace('coefficients = "ptfe-synthetic.coeff.csv"',
-                                    'coefficients = "../shared/data/ptfe/PTFE.coeff.csv"')
-    assert 'coefficients = "../shared/data/ptfe/PTFE.coeff.csv"' in text
-    spec.write_text(text)
-    proc = _run("tabulate", spec, cwd=REPO)
-    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
-    proc = _run("validate", spec, cwd=REPO)
-    assert proc.returncode == 0 and "FAIL" not in proc.stdout, proc.stdout + proc.stderr
-    table = brdftab.open(tmp_path / "main" / "ptfe-zernike.nc")
-    record = table.parameters["coefficients"]
-    assert Path(record["path"]).resolve() == PTFE_COEFF.resolve()
-    assert record["sha256"] == hashlib.sha256(PTFE_COEFF.read_bytes()).hexdigest()
-    # the table reproduces Germer's measurement about as well as the model does
-    rows = _measured(0.532)
-    rows = rows[np.abs(rows[:, 1]) <= 60.0]
-    theta_i = np.radians(np.abs(rows[:, 1]))
-    wi = sph_to_vec(theta_i, np.radians(rows[:, 2]) + np.pi)
-    wo = sph_to_vec(np.radians(rows[:, 3]), np.radians(rows[:, 4]))
-    f = table.eval(wi, wo)[:, 0]
-    assert np.sqrt(np.mean(np.log(f / rows[:, 5]) ** 2)) < 0.035

@@ -41,7 +41,7 @@ from ..registry import Registry
 
 __all__ = ["Check", "ChecksFailed", "Context", "Outcome", "Report", "CHECKS", "LEVELS", "STATUSES", "SCHEMA_PATH",
            "SCHEMA_VERSION", "register", "run_checks", "configure", "guard", "stamp", "load_schema", "run_document",
-           "junit_xml"]
+           "junit_xml", "unstorable_report"]
 
 LEVELS = ("off", "warn", "error")
 STATUSES = ("pass", "warn", "fail", "skip")
@@ -309,7 +309,7 @@ def _convert(check, name, key, value):
             raise ParameterError(f"{name}.{key}", f"expected an angle in degrees, got {value!r}")
         try:
             value = (np.radians(np.asarray(value, float))).tolist()
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             raise ParameterError(f"{name}.{key}", f"expected angles in degrees, got {value!r}") from None
     try:
         return p.name, parse_params(check.thresholds, {p.name: value}, f"check {name}", fill=False)[p.name]
@@ -462,6 +462,32 @@ def guard(source, config=None, *, allow_invalid: bool = False, what: str = "", *
     report = run_checks(source, config, **kwargs)
     if hasattr(source, "ds"):
         stamp(source, report)
+    if not report.passed and not allow_invalid:
+        where = f" {what}" if what else ""
+        raise ChecksFailed(f"refusing to export{where}: {report.summary()} (pass --allow-invalid to write anyway)")
+    return report
+
+
+def unstorable_report(exc, config=None, *, allow_invalid: bool = False, what: str = "", subject: str = "") -> Report:
+    """The report on an output whose stored values no reader accepts (``exc``, a
+    :class:`~brdftab.formats.NotStorable`: values that overflow the storage type): the
+    ``finite`` check fails with its count (at its configured level); the other checks are
+    skipped, there being nothing to evaluate. Raises :class:`ChecksFailed` like :func:`guard`
+    unless ``allow_invalid``."""
+    merged = configure(config)
+    report = Report(subject=subject)
+    for name, check in CHECKS.items():
+        level = merged[name]["level"]
+        if level == "off":
+            continue
+        if name == "finite":
+            out = check.outcome(False, exc.count, 0, exc.detail, stored=exc.total)
+            if level == "warn":
+                out.status = "warn"
+        else:
+            out = check.skip("the stored values cannot be read back (see the finite check)")
+        out.level, out.family = level, check.family
+        report.outcomes.append(out)
     if not report.passed and not allow_invalid:
         where = f" {what}" if what else ""
         raise ChecksFailed(f"refusing to export{where}: {report.summary()} (pass --allow-invalid to write anyway)")

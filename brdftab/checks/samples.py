@@ -79,6 +79,10 @@ class Finite(Check):
             total = a["values"].size
             where = _where(ctx, a["nan"] | a["inf"])
             at = f"; first at {fmt_where(where[0])}" if where else ""
+            stored = getattr(ctx.brdf, "stored_dtype", None)
+            if stored and bad:  # finite in float64, not in the file's storage type
+                at += (f"; as stored in {stored} (largest finite value "
+                       f"{float(np.finfo(np.dtype(stored)).max):.4g})")
             return self.outcome(bad == 0, bad, 0, f"{bad} of {total} samples are NaN or infinite ({nan} NaN, "
                                 f"{inf} infinite){at}", nan=nan, inf=inf, samples=total, where=where)
         a = _model_audit(ctx)

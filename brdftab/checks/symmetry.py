@@ -121,9 +121,9 @@ class Isotropy(_Pairwise):
                                    note)
             a_ti, a_pi, a_to, a_po = grid.axes
             if len(a_pi) == 1:
-                return self.outcome(True, 0.0, max_relative, "one φi node: isotropy cannot be measured "
-                                    "(the table is rotated about the normal for other φi)" if declared else
-                                    "one φi node: isotropy cannot be measured", mode="construction")
+                # nothing to compare: a check that measures nothing is skipped, not passed
+                return self.skip("one φi node: isotropy cannot be measured (the table is rotated about the normal "
+                                 "for other φi)" if declared else "one φi node: isotropy cannot be measured")
             if grid.relative_to == "specular":
                 # (θi, φi_b, Δθ, Δφ) rotates onto (θi, φi_0, Δθ, Δφ): compare with the first φi node
                 v = data_values(ctx)

@@ -20,6 +20,13 @@ turns any BRDF into what ``write`` takes. The default reuses a :class:`~brdftab.
 whose grid equals the target grid (values copied, never resampled) and otherwise tabulates
 the BRDF on the target grid. A format that needs the model itself (the RGL ``.bsdf`` writer
 samples D and the VNDF) supplies its own ``prepare``.
+
+What is checked is what is stored: a format whose storage loses precision declares
+``stored(payload, **options)``, the BRDF a reader of the written file gets back (netCDF
+``dtype = "float32"`` and EXR round the samples to float32, values beyond its range becoming
+infinite; an RGL ``.bsdf`` is read through its float32 fields). :func:`stored` gives it, and
+the pipeline and ``convert`` run the checks on it — a value that is finite in float64 but not
+as stored is a ``finite`` failure. A format that stores the samples exactly declares nothing.
 """
 
 from __future__ import annotations
@@ -28,19 +35,22 @@ import contextlib
 import importlib
 import importlib.util
 import os
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
+import numpy as np
+
 from .._atomic import atomic_path
 from .._locks import check_target
 from .._signals import held_signals
-from ..errors import BrdftabError, FormatError, ParameterError
+from ..errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
 from ..params import parse_params, suggest
 from ..registry import Registry
 
 __all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "write_prepared", "format_for",
-           "target_grid", "prepare", "available", "naming"]
+           "target_grid", "prepare", "stored", "cast_samples", "NotStorable", "available", "naming"]
 
 #: Bytes of a file's head passed to ``magic`` and ``sniff`` (enough for the comment lines that
 #: start a Zemax ``.bsdf`` text file before its first keyword).
@@ -73,9 +83,17 @@ class FileFormat:
     prepare: Callable | None = None
     #: Rules between options that single declarations cannot say (one excludes another).
     check_options: Callable | None = None
+    #: True when the format's library opens files by UTF-8 names only (netCDF/HDF5, OpenEXR): a
+    #: path that is not valid UTF-8 (bytes such as 0xff in a name, as POSIX allows) is refused
+    #: up front (:meth:`check_path`) instead of failing inside the library after the work.
+    utf8_paths: bool = False
     #: Stated precision: the largest relative difference between what the writer wrote (the
     #: table, or its own sampling) and what the reader returns (the format contract tests it).
     precision: float = 0.0
+    #: ``stored(payload, **options) -> BRDF``: what a reader of the written file gets back (the
+    #: samples rounded to the storage type); a table it returns is also what is written. None:
+    #: the format stores the payload's samples exactly (see :func:`stored`).
+    stored: Callable | None = None
 
     @property
     def options(self) -> dict:
@@ -100,6 +118,19 @@ class FileFormat:
         if miss:
             raise BrdftabError(f"format {self.name} needs the Python package {', '.join(miss)}, which is not "
                                f"installed (pip install {' '.join(miss)})")
+
+    def check_path(self, path) -> None:
+        """Refuse (one line) a path this format's library cannot open: not valid UTF-8."""
+        if not self.utf8_paths:
+            return
+        text = os.fspath(path)
+        try:
+            text.encode("utf-8") if isinstance(text, str) else text.decode("utf-8")
+        except UnicodeError:
+            shown = text.encode("utf-8", "surrogateescape") if isinstance(text, str) else text
+            raise BrdftabError(f"{shown.decode('utf-8', 'backslashreplace')}: the {self.name} library opens only paths "
+                               "that are valid UTF-8; rename the file or folder (MERL .binary and RGL .bsdf "
+                               "files take any name)") from None
 
     def validate_options(self, options: dict) -> dict:
         """The options checked against the declarations (unknown names with did-you-mean,
@@ -185,6 +216,7 @@ def read(path):
     """Read a table from ``path`` (any registered format)."""
     fmt = detect(path)
     fmt.ensure_available()
+    fmt.check_path(path)
     try:
         return fmt.read(Path(path))
     except BrdftabError as exc:
@@ -215,6 +247,58 @@ def prepare(fmt: FileFormat, brdf, grid, options: dict | None = None):
     return (fmt.prepare or _default_prepare)(brdf, grid, **dict(options or {}))
 
 
+class NotStorable(FormatError):
+    """What a format would store cannot be read back as a BRDF: ``count`` of ``total`` stored
+    values are NaN or infinite (``detail`` says which and where). The checks report it as a
+    ``finite`` failure of the output."""
+
+    def __init__(self, detail: str, count: int, total: int):
+        super().__init__(detail)
+        self.detail, self.count, self.total = detail, int(count), int(total)
+
+
+def stored(fmt: FileFormat, payload, options: dict | None = None):
+    """The BRDF a reader of the file ``fmt`` writes from ``payload`` gets back: the values as
+    stored, which is what the checks judge (``payload`` itself for a format that stores its
+    samples exactly; None when the payload is not a BRDF and the format says nothing). A
+    :class:`~brdftab.table.Table` returned is what :func:`write_prepared` should write (its
+    samples equal what the file will hold). Raises :class:`NotStorable` when the stored values
+    are not finite in a way no reader accepts."""
+    from ..brdf import BRDF
+
+    if fmt.stored is None:
+        return payload if isinstance(payload, BRDF) else None
+    return fmt.stored(payload, **dict(options or {}))
+
+
+def cast_samples(table, dtype):
+    """``table`` with its samples as a file of storage type ``dtype`` holds them: rounded to
+    ``dtype`` (values beyond its range become ±inf) and held in the table's own type. The table
+    itself when the cast changes nothing; the same copy for repeated calls (outputs of one
+    table in one storage type share their checks)."""
+    from ..table import Table
+
+    dtype = np.dtype(dtype)
+    var = table.ds["brdf"]
+    if np.can_cast(var.dtype, dtype, "safe"):
+        return table
+    cache = table.__dict__.setdefault("_stored_casts", {})
+    if dtype.str in cache:
+        return cache[dtype.str]
+    v = np.asarray(table.values)
+    with np.errstate(over="ignore", invalid="ignore"):
+        back = v.astype(dtype).astype(v.dtype)
+    out = table
+    if not np.array_equal(back, v, equal_nan=True):
+        ds = table.ds.copy(deep=False)
+        ds["brdf"] = var.copy(data=back)
+        out = Table(ds)
+        out.origin = table.origin
+        out.stored_dtype = dtype.name  # the checks say the values are judged as stored
+    cache[dtype.str] = out
+    return out
+
+
 def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool = False, **options):
     """Write ``brdf`` to ``path`` atomically; returns what was written (usually the table).
 
@@ -224,6 +308,7 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
     """
     fmt = format_for(path, format)
     fmt.ensure_available()
+    fmt.check_path(path)
     try:
         fmt.validate_options(options)
     except BrdftabError as exc:
@@ -245,8 +330,13 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
                            f"got {type(grid).__name__}")
 
     requested = grid if grid is not None else (brdf.grid if isinstance(brdf, Table) else None)
+    target = target_grid(fmt, requested, options)
+    if grid is not None and (target is None or not target.equals(grid)):
+        stored = f"its own grid, {target.describe()}" if target is not None else "its own sampling"
+        warnings.warn(f"{path}: the {fmt.name} format stores {stored}; the grid given ({grid.describe()}) is not used",
+                      BrdftabWarning, stacklevel=3)
     with naming(path):
-        payload = prepare(fmt, brdf, target_grid(fmt, requested, options), options)
+        payload = prepare(fmt, brdf, target, options)
     write_prepared(fmt, payload, path, overwrite=overwrite, options=options)
     return payload
 
@@ -264,6 +354,7 @@ def naming(path):
 
 def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, options: dict | None = None):
     """Write what :func:`prepare` returned to ``path`` atomically (no tabulation here)."""
+    fmt.check_path(path)
     with atomic_path(path, overwrite=overwrite) as tmp:
         with held_signals(writing=Path(path).name):
             fmt.write(payload, tmp, **dict(options or {}))

@@ -71,7 +71,7 @@ def backscatter_ndf(brdf, wavelengths=None, *, n_theta=256, n_phi=8, max_iter=50
     σ(ω) = ∫ D(m)⟨ω·m⟩ dm, so D(ω) ∝ f(ω, ω)·cosθ·σ(ω): D is the positive eigenvector of
     that linear map (Dupuy et al. 2015). f(ω, ω) is averaged over ``n_phi`` azimuths and
     weighted to a luminance. Returns a callable ``h[..., 3] -> D [sr⁻¹]`` normalized so that
-    ∫ D cosθ dω = 1.
+    ∫ D cosθ dω = 1; a BRDF whose back-scattering is zero everywhere gets the flat D = 1/π.
     """
     theta, area = _theta_nodes(n_theta)
     lam = brdf.layout.resolve(wavelengths)
@@ -85,7 +85,13 @@ def backscatter_ndf(brdf, wavelengths=None, *, n_theta=256, n_phi=8, max_iter=50
 
     fb = backscatter(theta)
     if not np.any(fb > 0):
-        raise BrdftabError(f"cannot derive an NDF for {brdf.name!r}: its back-scattering f(w, w) is zero everywhere")
+        # nothing is scattered back (e.g. facets that never face the light and the eye at once):
+        # no lobe to follow, so the flat D = 1/π (∫ D cosθ dω = 1)
+        def flat(h):
+            h = np.asarray(h, float)
+            return np.where(h[..., 2] > 0, 1.0 / np.pi, 0.0)
+
+        return flat
     kernel = _azimuthal_kernel(theta, theta) * area[None, :]
     weight = fb * np.cos(theta)
     d = np.ones_like(theta)

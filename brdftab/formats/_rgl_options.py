@@ -13,7 +13,7 @@ __all__ = ["DEFAULTS", "OPTIONS", "PARAMS", "NDF_CHOICES", "MAX_RESOLUTION", "ch
 
 #: Default resolutions (format options).
 DEFAULTS = {
-    "n_theta_i": 9,            # incident elevations over [0, theta_i_max_deg] (theta_i_nodes)
+    "n_theta_i": 17,           # incident elevations over [0, theta_i_max_deg] (theta_i_nodes)
     "theta_i_max_deg": 89.0,
     "n_phi_i": 17,             # anisotropic files: incident azimuths over [-180°, 180°]
     "resolution": 32,          # N × N stored samples per incident direction

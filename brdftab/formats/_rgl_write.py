@@ -4,8 +4,8 @@ plugin (:func:`prepare_rgl`, :func:`write_rgl`).
 Steps (formats/rgl-bsdf.md, "How brdftab writes a file"): the ``ndf`` table is the model's own
 D or one from its back-scattering (:mod:`._rgl_ndf`), raised where another term dominates the
 back-scattering and floored at :data:`NDF_FLOOR`; ``sigma`` is its projected area; the
-``vndf`` field, the warp that places the N × N samples, mixes the visible normals of D with ωo
-uniform over the hemisphere (share :data:`WARP_UNIFORM`); the stored values are
+``vndf`` field, the warp that places the N × N samples, mixes the visible normals of D with an
+even spread over the half vectors whose ωo is above the horizon (share :data:`WARP_UNIFORM`); the stored values are
 f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with σ̂, D̂ the interpolants the readers evaluate,
 so that every reader returns f·cosθo exactly at the nodes; ``luminance`` is the luminance of
 f·cosθo per unit area of the unit square, so that Mitsuba samples ωo in proportion to f·cosθo.
@@ -36,10 +36,13 @@ __all__ = ["NDF_FLOOR", "WARP_UNIFORM", "RGLPayload", "prepare_rgl", "write_rgl"
 #: D is floored at this fraction of its maximum: f·cosθo > 0 needs D > 0 (the stored values
 #: are f·cosθo·4σ/D), and Beckmann-type D underflow to 0 far from the normal.
 NDF_FLOOR = 1e-6
-#: Share ε of the warp (the ``vndf`` field) given to ωo uniform over the hemisphere; the rest
-#: follows the visible normals. The VNDF alone leaves the tails of D, hence grazing ωo, with a
-#: few wide cells of the N × N samples.
-WARP_UNIFORM = 0.3
+#: Share ε of the warp (the ``vndf`` field) spread evenly over the unit square of half vectors
+#: where ωo is above the horizon; the rest follows the visible normals. The VNDF alone leaves
+#: the tails of D, hence grazing ωo, with a few wide cells of the N × N samples; an even share
+#: in ωo (rather than in the square) starves the half vectors near the normal at grazing
+#: incidence (|dωo/du_m| vanishes there like u³ and with ⟨ωi·m⟩).
+WARP_UNIFORM = 0.5
+WARP_SQUARE = 0.5
 
 
 @dataclass
@@ -142,11 +145,11 @@ def _ndf_tables(ndf, warp_ndf, nx, ny, anisotropic, name):
 def _vndf_table(d, th_i, ph_i, nv, uniform=None):
     """The ``vndf`` field ``[Nφi, Nθi, nv, nv]``, float32: the density over u_m of the warp.
 
-    (1 − ε)·[D(m)⟨ωi·m⟩₊ J] + ε·[⟨ωi·m⟩₊ J where ωo is above the horizon], each normalized to
-    mean 1 over the table, with J = 2π² u_x sinθm (the Jacobian of u -> m) and ε = ``uniform``
-    (default :data:`WARP_UNIFORM`): the visible normals of D mixed with ωo uniform over the
-    hemisphere (dωo = 4⟨ωi·m⟩ dm). m = sph(u2theta(x), u2phi(y)): φm relative to φi (= 0)
-    for isotropic files, absolute for anisotropic ones.
+    (1 − ε)·[D(m)⟨ωi·m⟩₊ J] + ε·[1 where ωo is above the horizon], each normalized to mean 1
+    over the table, with J = 2π² u_x sinθm (the Jacobian of u -> m) and ε = ``uniform``
+    (default :data:`WARP_UNIFORM`): the visible normals of D mixed with an even spread over
+    the part of the unit square whose ωo is above the horizon. m = sph(u2theta(x),
+    u2phi(y)): φm relative to φi (= 0) for isotropic files, absolute for anisotropic ones.
     """
     eps = WARP_UNIFORM if uniform is None else uniform
     g = np.linspace(0.0, 1.0, nv)
@@ -163,7 +166,9 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None):
     vndf = unit_mean(dot * (d(m) * jac)[None, None])
     if eps > 0:
         wo_z = 2.0 * dot * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
-        vndf = (1.0 - eps) * vndf + eps * unit_mean(np.where(wo_z > 0, dot * jac[None, None], 0.0))
+        above = (wo_z > 0) & (dot > 0)
+        vndf = (1.0 - eps) * vndf + eps * (WARP_SQUARE * unit_mean(np.where(above, 1.0, 0.0))
+                                           + (1.0 - WARP_SQUARE) * unit_mean(np.where(above, dot * jac[None, None], 0.0)))
     return vndf.astype(np.float32)
 
 
@@ -193,6 +198,25 @@ def _edge_weight(weight):
     out = weight.copy()
     out[..., 0] = weight[..., 1]
     return out
+
+
+def _check_coverage(brdf, theta_i):
+    """Refuse a table whose grid does not hold the incidences the file stores (a table on a
+    spherical grid with one incidence, or with a θi range short of the file's)."""
+    grid = getattr(brdf, "grid", None)
+    axis = next((a for a in getattr(grid, "axes", ()) if getattr(a, "name", "") == "theta_i"), None)
+    if axis is None:
+        return
+    values = np.degrees(np.asarray(axis.values, float))
+    want = np.degrees(theta_i)
+    if values.size < 2:
+        raise BrdftabError(f"the table holds a single incidence (theta_i = {values[0]:g} deg); an RGL .bsdf file "
+                           f"stores the reflectance for every incidence from {want.min():g} to {want.max():g} deg, "
+                           "so it cannot be written from this table")
+    if want.min() < values.min() - 1e-6 or want.max() > values.max() + 1e-6:
+        raise BrdftabError(f"the table holds incidences theta_i = {values.min():g} to {values.max():g} deg only; the "
+                           f"RGL file would store {want.min():g} to {want.max():g} deg (set theta_i_deg within the "
+                           "table's range)")
 
 
 def _check_size(brdf, n_slices, opts, n_chan):
@@ -230,6 +254,7 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
         raise ParameterError("anisotropic", f"model '{brdf.name}' is anisotropic; an isotropic file would keep "
                              "only phi_i = 0 (remove anisotropic = false)")
     lam = _plan_layout(brdf, opts["wavelengths"])
+    _check_coverage(brdf, opts["theta_i"])
     ndf, source = _choose_ndf(brdf, opts["ndf"], lam)
 
     theta_i = opts["theta_i"].astype(np.float32)

@@ -34,7 +34,7 @@ from ..channels import Layout
 from ..params import Param
 from ..errors import BrdftabError, FormatError, ParameterError
 from ..grids import RusinkiewiczGrid, merl_grid
-from . import FileFormat, read_head, register
+from . import FileFormat, cast_samples, read_head, register
 
 __all__ = ["read_exr", "write_exr", "native_grid", "check_options", "MAGIC"]
 
@@ -676,9 +676,11 @@ register(FileFormat(
     write=write_exr,
     magic=(MAGIC,),
     requires=("OpenEXR",),
+    utf8_paths=True,
     native_grid=native_grid,
     check_options=check_options,
     params=(Param("phi_d_deg", "floats", "phi_d slices in degrees, one part each (default: every phi_d node of the "
                   "grid).", units="deg", default=None),),
     precision=1e-6,  # float32 pixels
+    stored=lambda table, **_: cast_samples(table, np.float32),  # the pixels are float32
 ))

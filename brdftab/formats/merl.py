@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import hashlib
 import struct
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -35,7 +36,7 @@ import xarray as xr
 from ..models.combinators import Average
 from ..channels import Layout
 from ..params import Kind, Param, register_kind
-from ..errors import FormatError, ParameterError
+from ..errors import BrdftabWarning, FormatError, ParameterError
 from ..grids import merl_grid
 from . import FileFormat, read_head, register
 
@@ -57,6 +58,7 @@ CORRECTION = "merl_raw_ulp_correction"
 DEFAULT_PHI_H_SAMPLES = 36
 RGB = ("R", "G", "B")
 _BELOW_HORIZON = ("zero", "missing")
+_NEGATIVE = ("zero", "missing")
 _POSITIONS = ("bin-centre", "lower-edge")
 
 
@@ -188,9 +190,10 @@ def _correction(table, values):
     return corr if corr.shape == values.shape else None
 
 
-def write_merl(table, path, sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False):
+def write_merl(table, path, sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False,
+               negative="zero"):
     """Write ``table`` (on the MERL grid, channels R, G, B; see :func:`prepare_merl`) to ``path``."""
-    check_options(sample_position, below_horizon, phi_h_average, symmetrize)
+    check_options(sample_position, below_horizon, phi_h_average, symmetrize, negative)
     raw = merl_raw(table)
     with open(path, "wb") as fh:
         fh.write(HEADER)
@@ -230,11 +233,13 @@ class _CountKind(Kind):
 register_kind(_CountKind())
 
 
-def check_options(sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False):
+def check_options(sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False, negative="zero"):
     if sample_position is not None and (not isinstance(sample_position, str) or sample_position not in _POSITIONS):
         raise ParameterError("sample_position", f"expected 'bin-centre' or 'lower-edge', got {sample_position!r}")
     if not isinstance(below_horizon, str) or below_horizon not in _BELOW_HORIZON:
         raise ParameterError("below_horizon", f"expected 'zero' or 'missing', got {below_horizon!r}")
+    if not isinstance(negative, str) or negative not in _NEGATIVE:
+        raise ParameterError("negative", f"expected 'zero' or 'missing', got {negative!r}")
     _phi_h_samples(phi_h_average)
     if not isinstance(symmetrize, bool):
         raise ParameterError("symmetrize", f"expected true or false, got {symmetrize!r}")
@@ -250,7 +255,8 @@ def _phi_h_samples(value) -> int:
                          f"got {value!r}")
 
 
-def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False):
+def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False,
+                 negative="zero"):
     """The RGB table on the MERL grid that :func:`write_merl` writes for ``brdf``.
 
     A table already on the target MERL grid is copied. Anything else is tabulated at the
@@ -259,18 +265,24 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
     written). ``below_horizon = "missing"`` marks tabulated bins whose directions lie below the
     horizon with the raw value −1 instead of 0; bins where a resampled table has no data (NaN)
     are marked −1 too.
+
+    MERL reads every negative value as a "no measurement" marker, so negative samples that are
+    data (measurement noise below 0, not declared missing) would come back as missing bins:
+    with ``negative = "zero"`` (the default) they are written as 0, and one warning line gives
+    their count and the lowest value; ``negative = "missing"`` writes them as they are (read
+    back as missing). Samples the source declares missing stay markers.
     """
     from ..table import Table, tabulate
 
     from ..table import warn_specular_dropped
 
-    check_options(sample_position, below_horizon, phi_h_average, symmetrize)
+    check_options(sample_position, below_horizon, phi_h_average, symmetrize, negative)
     warn_specular_dropped(brdf, "the MERL .binary format")
     target = grid if _is_merl_grid(grid) else merl_grid(sample_position or "bin-centre")
     n_phi_h = _phi_h_samples(phi_h_average)
     _check_channels(brdf)
     if isinstance(brdf, Table) and target.equals(brdf.grid) and not n_phi_h and not symmetrize:
-        return _as_rgb(brdf)
+        return _clamp_negatives(_as_rgb(brdf), negative)
     source = brdf
     provenance = {}
     if isinstance(brdf, Table):
@@ -287,7 +299,7 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
     if symmetrize:
         source = Average(term=source, swap=True)
         provenance["symmetrized"] = 1
-    table = _as_rgb(tabulate(source, target, provenance=provenance or None))
+    table = _clamp_negatives(_as_rgb(tabulate(source, target, provenance=provenance or None)), negative)
     missing = None
     if isinstance(brdf, Table):
         # where the source table has no data (missing samples, outside its domain) it gives NaN
@@ -303,6 +315,33 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
         ds["brdf"] = xr.Variable(table.grid.dims + ("channel",), values, attrs={**ds["brdf"].attrs, "valid_min": 0.0})
         table = Table(ds)
     return table
+
+
+def _clamp_negatives(table, negative: str):
+    """``table`` with its negative data samples (not declared missing) set to 0, said in one
+    warning line, unless ``negative = "missing"``; the table itself when it has none."""
+    from ..table import Table
+
+    if negative == "missing":
+        return table
+    values = np.asarray(table.values)
+    with np.errstate(invalid="ignore"):
+        neg = values < 0
+    miss = table.missing
+    if miss is not None:
+        neg &= ~np.broadcast_to(np.asarray(miss, bool), neg.shape)
+    count = int(np.count_nonzero(neg))
+    if not count:
+        return table
+    lowest = float(values[neg].min())
+    warnings.warn(f"{count} of {values.size} samples are negative (lowest {lowest:.4g} sr-1): written as 0, as MERL "
+                  "reads negative values as missing-measurement markers (negative = \"missing\" keeps them "
+                  "negative)", BrdftabWarning, stacklevel=3)
+    ds = table.ds.copy(deep=False)
+    ds["brdf"] = ds["brdf"].copy(data=np.where(neg, 0.0, values))
+    out = Table(ds)
+    out.origin = table.origin
+    return out
 
 
 def _check_channels(brdf) -> None:
@@ -345,6 +384,8 @@ register(FileFormat(
         Param("phi_h_average", "count", "Write the phi_h average of an anisotropic BRDF: true (36 samples) or a "
               "sample count.", default=False, minimum=2, maximum=3600),
         Param("symmetrize", "bool", "Write (f(wi, wo) + f(wo, wi)) / 2 of a non-reciprocal BRDF.", default=False),
+        Param("negative", "choice", "Negative samples that are data (measurement noise): written as 0, or as they "
+              "are (MERL reads them as missing).", default="zero", choices=_NEGATIVE),
     ),
     precision=1e-12,  # float64, scaled per channel
 ))

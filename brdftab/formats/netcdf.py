@@ -22,7 +22,7 @@ import xarray as xr
 from .._progress import write_step
 from ..params import Param
 from ..errors import FormatError, ParameterError
-from . import FileFormat, register
+from . import FileFormat, cast_samples, register
 
 __all__ = ["read_netcdf", "write_netcdf"]
 
@@ -42,6 +42,8 @@ def read_netcdf(path):
         raise FormatError(f"{path}: not a readable netCDF file ({_first_line(exc)})") from None
     try:
         return Table(ds)
+    except ParameterError as exc:  # a value the file holds, named (e.g. a duplicate channel name)
+        raise FormatError(f"{path}: {exc}") from None
     except (KeyError, ValueError, TypeError, IndexError) as exc:
         raise FormatError(f"{path}: not a brdftab table ({_first_line(exc)})") from None
 
@@ -215,6 +217,11 @@ def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
                 write_step(done, total)
 
 
+def stored_netcdf(table, dtype: str = "float64", **_):
+    """The table as the file holds it: samples rounded to ``dtype`` (float32 overflows to inf)."""
+    return cast_samples(table, dtype)
+
+
 _FORMAT = register(FileFormat(
     name="netcdf",
     extensions=(".nc", ".nc4", ".netcdf"),
@@ -222,10 +229,12 @@ _FORMAT = register(FileFormat(
     read=read_netcdf,
     write=write_netcdf,
     magic=MAGIC,
+    utf8_paths=True,
     params=(
         Param("dtype", "choice", "Storage type of the samples (values are computed in float64).", default="float64",
               choices=("float64", "float32")),
         Param("complevel", "int", "zlib compression level (0: none).", default=4, minimum=0, maximum=9),
     ),
     precision=1e-12,  # float64 samples (float32 when dtype = float32: 1e-6)
+    stored=stored_netcdf,
 ))

@@ -33,7 +33,9 @@ microfacet-based BRDF parameters from arbitrary materials with power iterations"
 
 from __future__ import annotations
 
-from . import FileFormat, register
+import numpy as np
+
+from . import FileFormat, NotStorable, register
 from ._rgl_ndf import BACKSCATTER_BOUND, backscatter_bound, backscatter_ndf, model_ndf, sigma_table
 from ._rgl_options import DEFAULTS, MAX_RESOLUTION, NDF_CHOICES, OPTIONS, PARAMS, check_options, theta_i_nodes
 from ._rgl_read import RGB, RGLBSDF, RGLGrid, read_rgl, read_rgl_bytes
@@ -52,6 +54,20 @@ def _native_grid(requested, options):
     return None  # the file has its own sample layout; resolutions are format options
 
 
+def _stored(payload, **_):
+    """The file as a reader sees it: its float32 fields, evaluated as Mitsuba does. Fields that
+    overflow float32 (or hold NaN) make no readable file: :class:`~brdftab.formats.NotStorable`."""
+    bad = {name: int(np.count_nonzero(~np.isfinite(a))) for name, a in payload.fields.items()
+           if isinstance(a, np.ndarray) and a.dtype.kind == "f"}
+    bad = {name: n for name, n in bad.items() if n}
+    if bad:
+        count, total = sum(bad.values()), sum(payload.fields[name].size for name in bad)
+        where = ", ".join(f"{n} of {payload.fields[name].size} in '{name}'" for name, n in bad.items())
+        raise NotStorable(f"{count} of {total} values of the file's float32 fields are NaN or infinite ({where}; "
+                          f"largest finite float32 {float(np.finfo(np.float32).max):.4g})", count, total)
+    return payload.bsdf
+
+
 register(FileFormat(
     name="rgl",
     extensions=(".bsdf",),
@@ -66,4 +82,5 @@ register(FileFormat(
     prepare=prepare_rgl,
     check_options=check_options,
     precision=1e-9,  # the written float32 fields, read by the same reader
+    stored=_stored,
 ))

@@ -21,13 +21,13 @@ from __future__ import annotations
 from ..errors import ParameterError
 from .axis import (NODE_RULES, PHI_D_FOLDS, SAMPLE_POSITIONS, Axis, expand_angles,  # noqa: F401
                    fold_phi_d)
-from .base import COMMON_PARAMS, GRIDS, Grid, grid_from_config, grid_from_dataset, register
+from .base import COMMON_PARAMS, GRIDS, Grid, grid_from_config, grid_from_dataset, grid_wavelengths, register
 from .merl import merl_grid
 from .rusinkiewicz import RusinkiewiczGrid
 from .spherical import SphericalGrid
 
 __all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "merl_grid",
-           "grid_from_config", "grid_from_dataset", "check_grid", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS",
+           "grid_from_config", "grid_from_dataset", "grid_wavelengths", "check_grid", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS",
            "COMMON_PARAMS", "register"]
 
 GRID_TYPES = tuple(GRIDS)

@@ -29,10 +29,10 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..errors import ParameterError
-from ..params import Kind, register_kind, suggest
+from ..params import Kind, as_float, register_kind, suggest
 
 __all__ = ["Axis", "angle_axis", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS", "NODE_RULES", "HALF_PI", "TWO_PI",
-           "MAX_AXIS_NODES", "uniform_values", "count", "check_range", "expand_angles", "LONG_NAMES"]
+           "MAX_AXIS_NODES", "uniform_values", "count", "check_range", "expand_angles", "expand_range", "LONG_NAMES"]
 
 HALF_PI = 0.5 * np.pi
 TWO_PI = 2.0 * np.pi
@@ -241,11 +241,11 @@ def expand_angles(key, raw):
         if isinstance(item, bool):
             raise ParameterError(key, "expected numbers or ranges {start, stop, step|num}")
         if isinstance(item, (int, float)):
-            if not np.isfinite(item):
+            if not _finite(item):
                 raise ParameterError(key, "expected finite numbers")
             out.append(float(item))
         elif isinstance(item, dict):
-            out.extend(_range(key, item))
+            out.extend(expand_range(key, item))
         else:
             raise ParameterError(key, "expected numbers or ranges {start, stop, step|num}")
     if not out:
@@ -253,7 +253,8 @@ def expand_angles(key, raw):
     return np.radians(np.unique(np.round(np.asarray(out), 12)))
 
 
-def _range(key, r):
+def expand_range(key, r):
+    """The values of a range ``{start, stop, step|num[, endpoint]}`` (in the units written)."""
     allowed = {"start", "stop", "step", "num", "endpoint"}
     extra = set(r) - allowed
     if extra:
@@ -263,7 +264,8 @@ def _range(key, r):
     if "start" not in r or "stop" not in r or (("step" in r) == ("num" in r)):
         raise ParameterError(key, "a range needs start, stop and exactly one of step or num")
     for k in ("start", "stop", "step"):
-        if k in r and (isinstance(r[k], bool) or not isinstance(r[k], (int, float)) or not np.isfinite(r[k])):
+        if k in r and (isinstance(r[k], bool) or not isinstance(r[k], (int, float))
+                       or not _finite(r[k])):
             raise ParameterError(f"{key}.{k}", "expected a finite number")
     start, stop = float(r["start"]), float(r["stop"])
     endpoint = r.get("endpoint", True)
@@ -285,6 +287,11 @@ def _range(key, r):
     if not endpoint:
         vals = vals[vals < stop - 1e-9]
     return list(vals)
+
+
+def _finite(x) -> bool:
+    x = as_float(x)
+    return x is not None and bool(np.isfinite(x))
 
 
 class AnglesKind(Kind):

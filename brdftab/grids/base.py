@@ -8,41 +8,66 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..registry import Registry
-from ..params import Kind, Param, register_kind, suggest
-from .axis import LONG_NAMES, NODE_RULES, Axis
+from ..params import Kind, Param, _show, as_float, register_kind, suggest
+from .axis import LONG_NAMES, NODE_RULES, Axis, expand_range
 
-__all__ = ["Grid", "GRIDS", "register", "grid_from_config", "grid_from_dataset", "COMMON_PARAMS",
+__all__ = ["Grid", "GRIDS", "register", "grid_from_config", "grid_from_dataset", "grid_wavelengths", "COMMON_PARAMS",
            "read_coordinate", "choice_attr"]
 
 #: Grid types by spec name (``[grid] type = ...``).
 GRIDS = Registry("grid type", attr="type_name")
 
 class WavelengthsKind(Kind):
-    """A list of wavelengths [nm], positive and strictly increasing."""
+    """Wavelengths [nm], positive and strictly increasing: a list of numbers and/or ranges
+    ``{start, stop, step|num[, endpoint]}`` (the range syntax of angle lists), in nm."""
 
     name = "wavelengths"
 
     def expected(self, p):
-        return "a list of positive wavelengths in nm, increasing"
+        return "a list of positive wavelengths in nm, increasing (numbers and/or ranges {start, stop, step|num})"
 
     def convert(self, p, value):
-        if (not isinstance(value, (list, tuple, np.ndarray)) or len(value) == 0
-                or any(isinstance(x, bool) or not isinstance(x, (int, float, np.number)) for x in value)):
-            raise ParameterError(p.name, f"expected {self.expected(p)}")
-        lam = np.asarray(value, float)
-        if not np.all(np.isfinite(lam)) or np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
-            raise ParameterError(p.name, f"expected {self.expected(p)}")
+        if isinstance(value, np.ndarray):
+            value = value.tolist()
+        items = [value] if isinstance(value, dict) else value
+        if not isinstance(items, (list, tuple)) or len(items) == 0:
+            raise ParameterError(p.name, f"expected {self.expected(p)}, got {_show(value)}")
+        out = []
+        for item in items:
+            if isinstance(item, dict):
+                out.extend(expand_range(p.name, item))
+            elif isinstance(item, bool) or not isinstance(item, (int, float, np.number)):
+                raise ParameterError(p.name, f"expected {self.expected(p)}, got {_show(item)}")
+            else:
+                x = as_float(item)
+                out.append(np.nan if x is None else x)
+        lam = np.asarray(out, float)
+        if not np.all(np.isfinite(lam)) or np.any(lam <= 0):
+            raise ParameterError(p.name, f"expected positive, finite wavelengths in nm, got {_show(value)}")
+        if np.any(np.diff(lam) <= 0):
+            k = int(np.flatnonzero(np.diff(lam) <= 0)[0])
+            raise ParameterError(p.name, f"wavelengths must increase strictly: {lam[k]:g} nm is followed by "
+                                 f"{lam[k + 1]:g} nm")
         return lam
 
     def to_json(self, value):
         return np.asarray(value, float).tolist()
 
 
+def grid_wavelengths(cfg: dict):
+    """The spectral axis of a ``[grid]`` table: ``wavelengths_nm`` [nm] as an array, or None.
+    Raises :class:`ParameterError` (key ``wavelengths_nm``)."""
+    if "wavelengths_nm" not in cfg:
+        return None
+    return COMMON_PARAMS[0].convert(cfg["wavelengths_nm"])
+
+
 register_kind(WavelengthsKind())
 
 #: Keys every ``[grid]`` table accepts besides the type's own.
 COMMON_PARAMS = (
-    Param("wavelengths_nm", "wavelengths", "Wavelengths to sample a spectral model at [nm] (a list).", units="nm",
+    Param("wavelengths_nm", "wavelengths", "Wavelengths to sample a spectral model at [nm]: a list of numbers "
+          "and/or ranges {start, stop, step|num}.", units="nm",
           default=None, used_when="spectral models"),
 )
 
@@ -216,6 +241,8 @@ def grid_from_config(cfg: dict) -> Grid:
     Raises :class:`ParameterError` naming the offending key.
     """
     kind = cfg.get("type")
+    if "type" not in cfg:
+        raise ParameterError("type", f"missing: say which grid, one of {', '.join(GRIDS.names())}")
     if not isinstance(kind, str) or kind not in GRIDS:
         raise ParameterError("type", GRIDS.message(kind))
     cls = GRIDS[kind]

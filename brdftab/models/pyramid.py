@@ -133,6 +133,7 @@ from ..errors import ParameterError
 from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
+from . import pyramid_walk
 from .combinators import Sum
 from .distributions import d_beckmann
 from ._registry import register
@@ -606,6 +607,99 @@ def _walk(dist: PyramidDistribution, wi, max_bounces: int, correlated: bool) -> 
                  faces[go, 0])
 
 
+def _facet_frame(dist: PyramidDistribution, w):
+    """Directions ``w[U, 3]`` with azimuths measured from facet 0's normal (turned by −φ0)."""
+    c, s = np.cos(dist.phi0), np.sin(dist.phi0)
+    return np.stack([c * w[:, 0] + s * w[:, 1], c * w[:, 1] - s * w[:, 0], w[:, 2]], axis=-1)
+
+
+def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _Walk:
+    """The walk over the same face sequences as :func:`_walk` with the ray tracer's branching
+    probabilities (:mod:`~brdftab.models.pyramid_walk`): the first face k with probability
+    a_k T_k(ωi) / Σ_j a_j T_j(ωi); after the sequence s (up to the table's depth) the ray
+    escapes or goes on to face j in proportion to the table's fractions escaping after s and
+    reaching s + j, over the branches the geometry allows (escape only upwards, face j only when
+    ⟨d, f_j⟩ < 0). Past the table's depth, or where the table has no rays on the allowed
+    branches, the uncorrelated rule decides: escape with G1(d), else face j ∝ a_j T_j(−d)."""
+    tab = pyramid_walk.table() if tab is None else tab
+    wi = np.asarray(wi, float).reshape(-1, 3)
+    nu = wi.shape[0]
+    F = dist.normals
+    mb, depth_t = max_bounces, tab.depth
+    c0 = wi @ F.T
+    area = dist.facet_areas(wi)
+    p_first = area / area.sum(axis=1, keepdims=True)
+    front = (c0 > 0) & (p_first > MIN_PROBABILITY)
+    r_esc, r_hit = tab.ratios(_facet_frame(dist, wi))
+    r_esc, r_hit = np.nan_to_num(r_esc, nan=1.0), np.nan_to_num(r_hit, nan=1.0)
+    first_cont = np.zeros((nu, 4))
+    uu, kk = np.nonzero(front)
+    u, code, mass = uu, kk, p_first[uu, kk]
+    d = _reflect_dir(-wi[uu], F[kk])
+    faces = np.full((u.size, mb), -1)
+    faces[:, 0] = kk
+    cosines = np.full((u.size, mb), np.nan)
+    cosines[:, 0] = c0[uu, kk]
+    ex = {k: [] for k in ("u", "dirs", "prob", "bounces", "faces", "cosines")}
+    for depth in range(1, mb + 1):
+        cd = d @ F.T
+        can_hit = cd < 0
+        hit_w = np.where(can_hit, FACET_WEIGHT * visible_area(-cd, dist.alpha), 0.0)
+        tot = hit_w.sum(axis=1)
+        none = tot <= 0
+        up = d[:, 2] > 0
+        # the uncorrelated rule
+        with np.errstate(divide="ignore", invalid="ignore"):
+            g1 = np.where(up, np.where(none, 1.0, np.minimum(d[:, 2] / dist.projected_area(d), 1.0)), 0.0)
+            split = np.where(none[:, None], 0.0, hit_w / np.where(none, 1.0, tot)[:, None])
+        p_esc, p_hit = g1, (1.0 - g1)[:, None] * split
+        if depth <= depth_t:
+            w_esc = p_esc * r_esc[u, pyramid_walk.offset(depth) + code]
+            if depth < depth_t:
+                w_hit = p_hit * r_hit[u[:, None], pyramid_walk.offset(depth + 1) + 4 * code[:, None] + np.arange(4)]
+                t_tot = w_esc + w_hit.sum(axis=1)
+                known = t_tot > 0
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    p_esc = np.where(known, w_esc / t_tot, p_esc)
+                    p_hit = np.where(known[:, None], w_hit / t_tot[:, None], p_hit)
+            else:   # past the table: only the escape is the tracer's (a ray with no face to hit escapes)
+                p_esc = np.where(none, p_esc, np.minimum(w_esc, 1.0))
+                p_hit = (1.0 - p_esc)[:, None] * split
+        esc = mass * p_esc
+        mass_cont = mass - esc
+        if depth == 1:
+            first_cont[u, faces[:, 0]] = np.where(none, 0.0, mass_cont)
+        keep = esc > MIN_PROBABILITY
+        for key, val in (("u", u), ("dirs", d), ("prob", esc), ("faces", faces), ("cosines", cosines)):
+            ex[key].append(val[keep])
+        ex["bounces"].append(np.full(int(keep.sum()), depth))
+        go = (mass_cont > MIN_PROBABILITY) & ~none
+        if depth == mb:
+            break
+        pi, kj = np.nonzero((p_hit > 0) & go[:, None])
+        nxt = mass[pi] * p_hit[pi, kj]
+        ok = nxt > MIN_PROBABILITY
+        pi, kj, nxt = pi[ok], kj[ok], nxt[ok]
+        u, code, mass = u[pi], 4 * code[pi] + kj, nxt
+        cos_l = -cd[pi, kj]
+        d = _reflect_dir(d[pi], F[kj])
+        faces = faces[pi].copy()
+        faces[:, depth] = kj
+        cosines = cosines[pi].copy()
+        cosines[:, depth] = cos_l
+    cat = {k: np.concatenate(v) for k, v in ex.items()}
+    return _Walk(cat["u"], cat["dirs"], cat["prob"], cat["bounces"], cat["faces"], cat["cosines"],
+                 u[go], mass_cont[go], cosines[go], p_first, first_cont, np.where(front, 0.0, p_first),
+                 faces[go, 0])
+
+
+def _run_walk(dist: PyramidDistribution, wi, max_bounces: int, walk: str) -> _Walk:
+    """The walk called ``walk`` ('traced', 'height-correlated' or 'uncorrelated')."""
+    if walk == "traced":
+        return _traced_walk(dist, wi, max_bounces)
+    return _walk(dist, wi, max_bounces, walk == "height-correlated")
+
+
 def _share(w: _Walk, first_escape, rows=None) -> _Walk:
     """The walk ``w`` continuing from what the single-bounce term leaves: ``first_escape[U', 4]``
     is the energy each facet's lobe in the microfacet term sends out (its integral) for the
@@ -672,11 +766,33 @@ class SingleBounce(_Term):
     name = "pyramid-single-bounce"
     reciprocal = True
 
-    def __init__(self, dist, shadow, fres, correlated: bool):
+    def __init__(self, dist, shadow, fres, walk: str):
         super().__init__(dist, fres)
         self.shadow = shadow
-        # the form of G: 1/(1 + Λi + Λo) (height-correlated) or G1 G1 (the uncorrelated walk's)
-        self.correlated = correlated
+        # the form of G: 1/(1 + Λi + Λo) (height-correlated), G1 G1 (the uncorrelated walk's) or
+        # per facet √(g_k(ωi) g_k(ωo)) (the traced walk's, :meth:`traced_g`)
+        self.walk = walk
+        self.correlated = walk == "height-correlated"
+
+    def traced_g(self, w):
+        """g_k(w) = G1(w) · P_k(w) [..., 4], P_k the tracer's probability that a ray whose first
+        hit is facet k escapes right after it (:mod:`~brdftab.models.pyramid_walk`). For mirror
+        facets the lobe of facet k then sends out what the tracer sees escape from it, and
+        G = √(g_k(ωi) g_k(ωo)) is reciprocal (g_k(ωi) = g_k(ωo) for the true surface, by
+        reciprocity)."""
+        w = np.asarray(w, float)
+        flat = w.reshape(-1, 3)
+        uniq, inv = np.unique(flat, axis=0, return_inverse=True)
+        r, _ = pyramid_walk.table().ratios(_facet_frame(self.dist, uniq), slice(0, 4))
+        o = -uniq[:, None, :] + 2.0 * (uniq @ self.dist.normals.T)[..., None] * self.dist.normals   # ωi reflected
+        c = np.minimum(self.dist.G1(o) * np.nan_to_num(r, nan=1.0), 1.0) * self.dist.G1(uniq)[:, None]
+        return c[inv.ravel()].reshape(w.shape[:-1] + (4,))
+
+    def traced_G(self, wi, wo):
+        """The traced walk's G [..., 4]: √(g_k(ωi) g_k(ωo)), at most min(G1(ωi), G1(ωo)) (so a
+        facet's lobe never sends out more than its first hits, a_k T_k / S(ωi))."""
+        cap = np.minimum(self.dist.G1(wi), self.dist.G1(wo))[..., None]
+        return np.minimum(np.sqrt(self.traced_g(wi) * self.traced_g(wo)), cap)
 
     def facet_terms(self, wi, wo):
         """Grey f cosθo of each facet's lobe [..., 4] (no Fresnel), and cos_d = ⟨ωi, h⟩ [...]."""
@@ -685,6 +801,9 @@ class SingleBounce(_Term):
         h = h / norm[..., None]
         dk = d_beckmann(self.dist.local(h), self.dist.alpha) * FACET_WEIGHT
         dk = np.where((h[..., 2] > 0)[..., None], dk, 0.0)
+        if self.walk == "traced":
+            g = self.traced_G(wi, wo)
+            return dk * g / (4.0 * wi[..., 2])[..., None], 0.5 * norm
         g = self.shadow.G(wi, wo, h, self.dist)
         return dk * (g / (4.0 * wi[..., 2]))[..., None], 0.5 * norm
 
@@ -702,8 +821,12 @@ class SingleBounce(_Term):
         h = h / norm[:, None]
         loc = np.einsum("nij,nj->ni", self.dist.frames[k], h)
         dk = d_beckmann(loc, self.dist.alpha) * FACET_WEIGHT
-        lam_o = self.dist.lambda_(wo)
-        g = 1.0 / (1.0 + lam_i + lam_o) if self.correlated else 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
+        if self.walk == "traced":
+            rows = np.arange(k.size)
+            g = self.traced_G(wi, wo)[rows, k]
+        else:
+            lam_o = self.dist.lambda_(wo)
+            g = 1.0 / (1.0 + lam_i + lam_o) if self.correlated else 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
         return np.where(h[:, 2] > 0, dk * g / (4.0 * wi[:, 2]), 0.0), 0.5 * norm
 
     def facet_energy(self, wi, lam=None, n=1, fresnel=False, fine=False):
@@ -739,11 +862,11 @@ class MultiBounce(_Term):
     name = "pyramid-multi-bounce"
     reciprocal = False
 
-    def __init__(self, single, max_bounces, correlated):
+    def __init__(self, single, max_bounces, walk):
         super().__init__(single.dist, single.fres)
         self.single = single
         self.max_bounces = max_bounces
-        self.correlated = correlated
+        self.walk_name = walk
         self.beta = 2.0 * self.dist.alpha
         self.cos_cut = 1.0 / np.sqrt(1.0 + _CUT * self.beta ** 2)
 
@@ -751,7 +874,7 @@ class MultiBounce(_Term):
         """The walk from incidence directions ``wi[U, 3]``, sharing the energy with the
         single-bounce term (:func:`_share`)."""
         wi = np.asarray(wi, float).reshape(-1, 3)
-        return _share(_walk(self.dist, wi, self.max_bounces, self.correlated), self.single.facet_energy(wi))
+        return _share(_run_walk(self.dist, wi, self.max_bounces, self.walk_name), self.single.facet_energy(wi))
 
     def lobes(self, wo, e, energy_grey, norm):
         """Grey f cosθo of each exit lobe at directions ``wo[M, 3]`` → [M, S]."""
@@ -760,7 +883,7 @@ class MultiBounce(_Term):
     def _eval(self, wi, wo, lam, n):
         uniq, inv = np.unique(wi, axis=0, return_inverse=True)
         inv = inv.ravel()
-        w = _walk(self.dist, uniq, self.max_bounces, self.correlated)
+        w = _run_walk(self.dist, uniq, self.max_bounces, self.walk_name)
         sel = np.flatnonzero(w.bounces >= 2)
         out = np.zeros((wi.shape[0], n))
         if sel.size == 0:
@@ -868,9 +991,10 @@ def _params():
         *PyramidDistribution.params,
         Param("max_bounces", "int", "Bounces followed (face sequences up to this length; 1: single-bounce "
               "microfacet model only).", default=3, minimum=1, maximum=6),
-        Param("walk", "choice", "Escape rule between bounces: 'height-correlated' (Smith walk with hit heights; "
-              "closer to a ray tracer) or 'uncorrelated' (de Haas §3.3.2 made a probability: escape with G1).",
-              default="height-correlated", choices=("height-correlated", "uncorrelated")),
+        Param("walk", "choice", "Probabilities of the face sequences: 'traced' (a ray tracer's of the random array, "
+              "tabulated over incidence), 'height-correlated' (Smith walk with hit heights) or 'uncorrelated' "
+              "(de Haas §3.3.2 made a probability: escape with G1).",
+              default="traced", choices=("traced", "height-correlated", "uncorrelated")),
         C.component_param("fresnel", "none", "Fresnel reflectance of each facet, per bounce ('none': mirror "
                           "facets)."),
         *C.member_params("fresnel"),
@@ -889,13 +1013,14 @@ class PyramidMicrofacet(Model):
 
     def _setup(self, facet_roughness, phi0, max_bounces, walk, fresnel, **fresnel_values):
         self.dist = C.build("distribution", "pyramid", {"facet_roughness": facet_roughness, "phi0": phi0})
+        self.walk = walk
         self.correlated = walk == "height-correlated"
-        self.shadow = C.build("shadowing", "pyramid" if self.correlated else "smith", {})
+        self.shadow = C.build("shadowing", "smith" if walk == "uncorrelated" else "pyramid", {})
         self.fres = C.build("fresnel", fresnel, fresnel_values)
         self.layout = self.fres.layout
         self.max_bounces = max_bounces
-        self.single = SingleBounce(self.dist, self.shadow, self.fres, self.correlated)
-        self.multi = MultiBounce(self.single, max_bounces, self.correlated) if max_bounces > 1 else None
+        self.single = SingleBounce(self.dist, self.shadow, self.fres, walk)
+        self.multi = MultiBounce(self.single, max_bounces, walk) if max_bounces > 1 else None
         self.terms = Sum(terms=[self.single, self.multi]) if self.multi is not None else self.single
         self.reciprocal = self.multi is None
 
@@ -928,7 +1053,7 @@ class PyramidMicrofacet(Model):
         return lam, self.layout.n_out(lam)
 
     def _walk(self, wi):
-        w = _walk(self.dist, wi[None, :], self.max_bounces, self.correlated)
+        w = _run_walk(self.dist, wi[None, :], self.max_bounces, self.walk)
         return _share(w, self.single.facet_energy(wi[None, :], fine=True))
 
     def exit_directions(self, wi, wavelengths=None) -> Exits:

@@ -32,8 +32,12 @@ as the azimuthal order of both radial orders and of cos(lΔφ), and ignores colu
 other rows (which this unpolarized model reads and checks but does not evaluate) column 5 goes
 with column 3 and column 6 with column 4. Each line is checked; a bad line (wrong column count,
 a non-numeric or non-integer field, a non-finite coefficient, i or j outside 1…4, i > j, a
-negative radial order, or an odd n − l / m − l (11 rows) or n − k / m − l (other rows), which
-makes the term identically zero) is one error naming the file and the line. |l| > n is allowed:
+negative radial order, an order n, m, k or l above 100 in magnitude (:data:`MAX_ORDER`; Germer's
+files use up to 7), a power p of the wavelength beyond ±16 (:data:`MAX_POWER`), or an odd n − l /
+m − l (11 rows) or n − k / m − l (other rows), which makes the term identically zero) is one
+error naming the file and the line. Evaluation holds the radial and azimuthal factors of a
+bounded number of direction pairs at a time (:data:`EXPANSION_BYTES`), so memory does not grow
+with the number of rows or the orders. |l| > n is allowed:
 Germer's ``PTFE.coeff.csv`` has 60 such off-diagonal rows, whose R_n^l is 0 in SCATMECH too.
 
 Wavelength
@@ -211,8 +215,14 @@ def _parse_line(body: str, err):
     if not math.isfinite(a):
         raise err(f"column 8 (a) must be finite, got {fields[7]!r}")
     i, j, n, m, k, l, p = ints
+    big = [f"{c} = {_short(v)}" for c, v in zip("nmkl", (n, m, k, l)) if abs(v) > MAX_ORDER]
+    if big:
+        raise err(f"orders above {MAX_ORDER} are not supported ({', '.join(big)}; the fitted files use orders "
+                  "up to about 10)")
+    if abs(p) > MAX_POWER:
+        raise err(f"power of the wavelength p must lie in -{MAX_POWER}..{MAX_POWER}, got {_short(p)}")
     if not (1 <= i <= 4 and 1 <= j <= 4):
-        raise err(f"Mueller indices i, j must be 1 to 4, got i = {i}, j = {j}")
+        raise err(f"Mueller indices i, j must be 1 to 4, got i = {_short(i)}, j = {_short(j)}")
     if i > j:
         raise err(f"i > j (i = {i}, j = {j}): the file lists each pair once with i <= j")
     if n < 0 or m < 0:
@@ -227,6 +237,11 @@ def _parse_line(body: str, err):
                    "rows other than 11 pair column 5 (k) with n and column 6 (l) with m"
             raise err(f"{rn} - {an} = {rv} - {av} is odd, so the term is identically zero ({role})")
     return ints, a
+
+
+def _short(v: int) -> str:
+    text = str(v)
+    return text if len(text) <= 20 else f"{text[:8]}... ({len(text.lstrip('-'))} digits)"
 
 
 class CoefficientFileKind(Kind):
@@ -270,6 +285,14 @@ class CoefficientFileKind(Kind):
 
 
 register_kind(CoefficientFileKind())
+
+#: Largest radial order (n, m) and azimuthal order (k, l) a coefficient file may use, and the
+#: largest |p| (power of the wavelength in µm). Germer's PTFE files use orders up to 7 and
+#: p ∈ {0, 1}; order 100 resolves features of about 1° on the hemisphere.
+MAX_ORDER = 100
+MAX_POWER = 16
+#: Bytes of radial-polynomial and cos(lΔφ) tables held at once while evaluating.
+EXPANSION_BYTES = 64 << 20
 
 #: The negativity scan: θi, θr [deg] and Δφ [deg] (Δφ ↔ −Δφ is a symmetry of f_r,11).
 _SCAN_THETA = np.concatenate([np.arange(0.0, 89.0, 1.5), [89.0, 89.5, 89.9]])
@@ -373,7 +396,22 @@ class ZernikeExpansion(Model):
     # -- evaluation ----------------------------------------------------------------------
 
     def _expansion(self, wi, wo, lam_nm) -> np.ndarray:
-        """The unclamped f_r,11 at ``(M, 3)`` unit pairs for wavelengths ``lam_nm`` [nm]: ``(M, n)``."""
+        """The unclamped f_r,11 at ``(M, 3)`` unit pairs for wavelengths ``lam_nm`` [nm]: ``(M, n)``.
+
+        Every radial polynomial and every cos(lΔφ) is held once per pair, so pairs are taken in
+        chunks that keep those tables within :data:`EXPANSION_BYTES`, whatever the file holds."""
+        keys = self.coefficients._keys
+        radials = len({(r, l) for n, m, l in keys for r in (n, m)})
+        per_pair = 8 * (2 * radials + int(keys[:, 2].max()) + 8)
+        step = max(1, EXPANSION_BYTES // per_pair)
+        if wi.shape[0] <= step:
+            return self._expansion_chunk(wi, wo, lam_nm)
+        out = np.empty((wi.shape[0], lam_nm.size))
+        for start in range(0, wi.shape[0], step):
+            out[start:start + step] = self._expansion_chunk(wi[start:start + step], wo[start:start + step], lam_nm)
+        return out
+
+    def _expansion_chunk(self, wi, wo, lam_nm) -> np.ndarray:
         si = np.hypot(wi[:, 0], wi[:, 1])
         so = np.hypot(wo[:, 0], wo[:, 1])
         # ρ = √2 sin(θ/2) = sinθ / √(1 + cosθ) (no cancellation near the normal)

@@ -1,5 +1,7 @@
-"""Ray tracer of a random array of equal, overlapping upright pyramids: the test oracle of
-``brdftab.models.pyramid`` (not part of the package; no mesh, no height-field sampling).
+"""Ray tracer of a random array of equal, overlapping upright pyramids (no mesh, no height-field
+sampling): it makes the sequence table of the ``pyramid-microfacet`` model's ``walk = "traced"``
+(``tools/make_pyramid_walk.py``, fields and rays from seeds of their own) and is the oracle
+the tests measure the model against (other seeds: independent fields and rays).
 
 The surface is the one de Haas simulates (thesis §4.1): ``n_pyramids`` equal upright pyramids
 with facet tilt θp = arctan √2 (KOH-etched (100) silicon), apexes uniformly random in a
@@ -178,6 +180,22 @@ class PyramidField:
         inten = 0.5 * (np.sum(np.abs(E[0]) ** 2, axis=1) + np.sum(np.abs(E[1]) ** 2, axis=1))
         escaped = bounces >= 0
         return Traced(bounces, exit_dir, faces, np.where(escaped, inten, 0.0), np.where(escaped, unpol, 0.0))
+
+
+def sequence_codes(faces: np.ndarray, bounces: np.ndarray, depth: int) -> np.ndarray:
+    """Code of each ray's face sequence for a table of ``depth`` bounces: rays escaping after
+    L <= ``depth`` bounces get ``offset(L) + Σ_i faces[i] 4^(L−1−i)``, rays still inside after
+    ``depth`` bounces (escaped later or not at all) ``offset(depth + 1) + code of their first
+    ``depth`` faces``, rays that never hit −1 (offset(L) = (4^L − 4)/3: 0, 4, 20, 84, …)."""
+    faces = np.asarray(faces)
+    bounces = np.asarray(bounces)
+    inside = (bounces > depth) | (bounces < 0)
+    length = np.where(inside, depth, bounces)
+    code = np.zeros(bounces.shape, int)
+    for i in range(depth):
+        code = np.where(i < length, 4 * code + np.maximum(faces[:, i], 0), code)
+    offset = (4 ** (np.where(inside, depth + 1, length)) - 4) // 3
+    return np.where(bounces == 0, -1, offset + code)
 
 
 def fractions(traced: Traced, max_bounces: int) -> np.ndarray:

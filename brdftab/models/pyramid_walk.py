@@ -1,0 +1,219 @@
+"""The sequence table of the ``pyramid-microfacet`` model's ``walk = "traced"``: how often a
+ray tracer of the random pyramid array (:mod:`brdftab.models.pyramid_tracer`) sees each face
+sequence, tabulated over incidence and interpolated.
+
+``pyramid_walk.npz`` (made by ``tools/make_pyramid_walk.py``) holds, at incidence nodes
+(θ, φ) with φ measured from a face normal's azimuth over the symmetry domain 0° … 45° (the
+random array is invariant under 90° turns and the mirrors about a face normal's azimuth and
+about the diagonal), the fractions of the rays that
+
+* first hit face k (``first`` [θ, φ, 4]),
+* escape after exactly the face sequence s of 1 … ``depth`` bounces (``escape`` [θ, φ, codes];
+  s = (k1, …, kL) has code ``offset(L) + Σ k_i 4^(L−i)``, offset(L) = (4^L − 4)/3),
+* are still inside after ``depth`` bounces, by their first ``depth`` faces (``inside``
+  [θ, φ, 4^depth]).
+
+:class:`WalkTable` interpolates them bilinearly in (θ, φ) (θ clamped to the last node),
+relative to the uncorrelated walk's branching (:meth:`WalkTable.ratios`), and relabels the
+faces of the node's symmetry image back to the query's.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+TABLE = Path(__file__).with_name("pyramid_walk.npz")
+
+
+def offset(length) -> int:
+    """First code of the sequences of ``length`` bounces: (4^L − 4)/3."""
+    return (4 ** np.asarray(length) - 4) // 3
+
+
+def n_codes(depth: int) -> int:
+    """Number of codes of the sequences of 1 … ``depth`` bounces."""
+    return int(offset(depth + 1))
+
+
+def symmetry_permutations(depth: int):
+    """Face and code maps of the 8 symmetries of the array, indexed ``2 r + m``: the query's
+    direction turned by −90° r, then mirrored about the diagonal when m = 1, lands in the
+    symmetry domain; its face k is the domain's face ``faces[op, k]``. Returns (faces [8, 4],
+    escape codes [8, n_codes], inside codes [8, 4^depth]): query code c ↦ domain code."""
+    faces = np.zeros((8, 4), int)
+    for r in range(4):
+        for m in range(2):
+            k = (np.arange(4) - r) % 4
+            faces[2 * r + m] = (1 - k) % 4 if m else k
+    esc = np.zeros((8, n_codes(depth)), int)
+    ins = np.zeros((8, 4 ** depth), int)
+    for op in range(8):
+        for length in range(1, depth + 1):
+            digits = _digits(np.arange(4 ** length), length)
+            esc[op, offset(length):offset(length + 1)] = offset(length) + _code(faces[op][digits])
+        ins[op] = _code(faces[op][_digits(np.arange(4 ** depth), depth)])
+    return faces, esc, ins
+
+
+def _digits(code, length):
+    """Faces [N, length] of base-4 codes (first face most significant)."""
+    return (np.asarray(code)[:, None] // 4 ** np.arange(length - 1, -1, -1)) % 4
+
+
+def _code(digits):
+    return (digits * 4 ** np.arange(digits.shape[1] - 1, -1, -1)).sum(axis=1)
+
+
+def domain_op(phi):
+    """(symmetry index, azimuth in the domain 0 … π/4) of azimuths ``phi`` [rad] measured from
+    a face normal's azimuth."""
+    quarter = 0.5 * np.pi
+    p = np.mod(np.asarray(phi, float), 2.0 * np.pi)
+    r = np.minimum((p // quarter).astype(int), 3)
+    p = p - r * quarter
+    m = p > 0.5 * quarter
+    return 2 * r + m, np.where(m, quarter - p, p)
+
+
+class WalkTable:
+    """Tabulated sequence fractions (see the module) and their interpolation.
+
+    The walk needs the tracer's branching after a sequence s: escape, or go on to face j. Near
+    the incidence where a branch opens (the travelling direction crosses the horizon or the
+    plane of face j) its probability grows from 0 with a kink that linear interpolation would
+    smear over a whole node step. So what is interpolated is the tracer's branching relative to
+    the uncorrelated walk's at the same incidence, whose branches open at exactly the same
+    incidences (escape with G1(d), face j with (1 − G1(d)) a_j T_j(−d) / Σ_l a_l T_l(−d), Dirac
+    facets): the ratio of the interpolated tracer fractions to the interpolated uncorrelated
+    ones, each weighted by the fraction reaching s (:meth:`ratios`)."""
+
+    def __init__(self, theta, phi, depth, first, escape, inside, meta=None):
+        self.theta = np.asarray(theta, float)
+        self.phi = np.asarray(phi, float)
+        self.depth = int(depth)
+        self.first = np.asarray(first, float)
+        self.escape = np.asarray(escape, float)
+        self.inside = np.asarray(inside, float)
+        self.meta = dict(meta or {})
+        self.faces, self.esc_perm, self.ins_perm = symmetry_permutations(self.depth)
+        self._ratio_parts = None
+
+    @classmethod
+    def load(cls, path=TABLE) -> "WalkTable":
+        with np.load(path) as z:
+            meta = {k[5:]: z[k][()] for k in z.files if k.startswith("meta_")}
+            return cls(np.radians(z["theta_deg"]), np.radians(z["phi_deg"]), int(z["depth"]), z["first"],
+                       z["escape"], z["inside"], meta)
+
+    def save(self, path):
+        np.savez_compressed(path, theta_deg=np.degrees(self.theta), phi_deg=np.degrees(self.phi), depth=self.depth,
+                            first=self.first.astype(np.float32), escape=self.escape.astype(np.float32),
+                            inside=self.inside.astype(np.float32),
+                            **{f"meta_{k}": np.asarray(v) for k, v in self.meta.items()})
+
+    def reach(self):
+        """Fraction reaching the L-th hit along each sequence s of 1 … depth bounces (indexed
+        by s's code) [θ, φ, n_codes]: what escapes after s plus what reaches s + j, j = 0 … 3."""
+        out = np.zeros_like(self.escape)
+        lo = offset(self.depth)
+        below = self.escape[..., lo:] + self.inside
+        out[..., lo:] = below
+        for level in range(self.depth - 1, 0, -1):
+            a, b = offset(level), offset(level + 1)
+            below = self.escape[..., a:b] + below.reshape(below.shape[:-1] + (4 ** level, 4)).sum(axis=-1)
+            out[..., a:b] = below
+        return out
+
+    def uncorrelated(self):
+        """The uncorrelated walk's branching at the nodes (Dirac facets, φ0 = 0): probability
+        [θ, φ, n_codes] of escaping right after s, and of going on to the last face of s (for
+        s of two or more bounces), given s; 0 on branches the geometry closes."""
+        from .pyramid import FACET_WEIGHT, facet_normals
+
+        f = facet_normals(0.0)
+        th, ph = np.meshgrid(self.theta, self.phi, indexing="ij")
+        wi = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
+        esc = np.zeros(th.shape + (n_codes(self.depth),))
+        hit = np.zeros_like(esc)
+        # level 1: d after the first face, feasible where that face faces ωi
+        d = -wi[..., None, :] + 2.0 * (wi @ f.T)[..., None] * f                # [θ, φ, 4, 3]
+        ok = (wi @ f.T) > 0
+        for level in range(1, self.depth + 1):
+            lo = offset(level)
+            cd = np.einsum("...j,kj->...k", d, f)                              # ⟨d, f_k⟩
+            area = FACET_WEIGHT * np.maximum(-cd, 0.0)
+            up = d[..., 2] > 0
+            with np.errstate(divide="ignore", invalid="ignore"):
+                g1 = np.where(up, np.minimum(1.0, d[..., 2] / (FACET_WEIGHT * np.maximum(cd, 0.0).sum(axis=-1))), 0.0)
+                split = area / area.sum(axis=-1, keepdims=True)
+            g1 = np.where(ok, np.nan_to_num(g1, nan=1.0), 0.0)
+            esc[..., lo:offset(level + 1)] = g1
+            if level == self.depth:
+                break
+            p = np.where(ok[..., None], (1.0 - g1)[..., None] * np.nan_to_num(split), 0.0)
+            hit[..., offset(level + 1):offset(level + 2)] = p.reshape(p.shape[:-2] + (-1,))
+            d = d[..., None, :] - 2.0 * cd[..., None] * f                      # d reflected on each face
+            d = d.reshape(d.shape[:-3] + (-1, 3))
+            ok = (ok[..., None] & (cd < 0)).reshape(ok.shape[:-1] + (-1,))
+        return esc, hit
+
+    def _parts(self):
+        """Numerators and denominators of :meth:`ratios` at the nodes."""
+        if self._ratio_parts is None:
+            reach = self.reach()
+            u_esc, u_hit = self.uncorrelated()
+            parent = np.zeros_like(reach)
+            for level in range(2, self.depth + 1):
+                a, b = offset(level), offset(level + 1)
+                parent[..., a:b] = np.repeat(reach[..., offset(level - 1):a], 4, axis=-1)
+            self._ratio_parts = (self.escape, reach * u_esc, reach, parent * u_hit)
+        return self._ratio_parts
+
+    @staticmethod
+    def _weights(grid, x):
+        """Linear interpolation indices and weights on ``grid`` (clamped at its ends)."""
+        x = np.clip(x, grid[0], grid[-1])
+        j = np.clip(np.searchsorted(grid, x, side="right") - 1, 0, grid.size - 2)
+        t = (x - grid[j]) / (grid[j + 1] - grid[j])
+        return j, t
+
+    def _interpolate(self, w, arrays, columns):
+        """Bilinear interpolation of ``arrays`` [θ, φ, n_codes] at unit directions ``w[U, 3]``
+        (azimuths from a face normal's) for the query's codes ``columns``: [U, len(columns)]
+        each (the node's codes are the query's relabelled by the symmetry that maps w into the
+        domain)."""
+        w = np.asarray(w, float).reshape(-1, 3)
+        theta = np.arccos(np.clip(w[:, 2], -1.0, 1.0))
+        op, phi = domain_op(np.arctan2(w[:, 1], w[:, 0]))
+        i, s = self._weights(self.theta, theta)
+        j, t = self._weights(self.phi, phi)
+        cols = self.esc_perm[op][:, columns]                                  # [U, C]
+        out = []
+        for arr in arrays:
+            v = ((1 - s) * (1 - t))[:, None] * arr[i[:, None], j[:, None], cols] \
+                + ((1 - s) * t)[:, None] * arr[i[:, None], j[:, None] + 1, cols] \
+                + (s * (1 - t))[:, None] * arr[i[:, None] + 1, j[:, None], cols] \
+                + (s * t)[:, None] * arr[i[:, None] + 1, j[:, None] + 1, cols]
+            out.append(v)
+        return out
+
+    def ratios(self, w, columns=slice(None)):
+        """The tracer's branching relative to the uncorrelated walk's, interpolated at unit
+        directions ``w[U, 3]`` given in the frame of the facets (azimuth from a face normal's):
+        (escape [U, C], hit [U, C]) for the codes ``columns`` (default all): for a sequence s,
+        escape[s] multiplies the uncorrelated probability of escaping right after s, and
+        hit[s] that of going on to s's last face after s without it. NaN where no node near w
+        sees a ray on the branch's parent while the branch is open (no information)."""
+        columns = np.arange(n_codes(self.depth))[columns]
+        n_esc, d_esc, n_hit, d_hit = self._interpolate(w, self._parts(), columns)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(d_esc > 0, n_esc / d_esc, np.nan), np.where(d_hit > 0, n_hit / d_hit, np.nan)
+
+
+@lru_cache(maxsize=1)
+def table() -> WalkTable:
+    """The shipped table (loaded once)."""
+    return WalkTable.load()
