@@ -14,7 +14,7 @@ import time
 
 from ._signals import checkpoint
 
-__all__ = ["write_step", "write_progress", "check_progress"]
+__all__ = ["check_progress", "write_progress", "write_step"]
 
 _observers: list = []
 

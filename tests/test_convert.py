@@ -499,9 +499,9 @@ def test_a_table_converted_from_a_merl_file_records_it(tmp_path):
     digest = hashlib.sha256(src.read_bytes()).hexdigest()
     assert attrs["converted_from"] == "paint.binary" and attrs["converted_from_sha256"] == digest
     # the MERL file records no history: the conversion is the first step
-    assert attrs["history"].splitlines() == [
-        f"{attrs['created']} brdftab {brdftab.__version__}: converted paint.binary (sha256 {digest}) to paint.nc, "
-        "copied"]
+    first = (f"{attrs['created']} brdftab {brdftab.__version__}: converted paint.binary (sha256 {digest}) to "
+             "paint.nc, copied")
+    assert attrs["history"].splitlines() == [first]
 
 
 def test_resampling_bound_is_met_by_a_measured_file(tmp_path):

@@ -259,5 +259,6 @@ def test_an_unwritable_junit_folder_is_refused_before_any_check(tmp_path, monkey
     assert r.exception is None or isinstance(r.exception, SystemExit), repr(r.exception)
     assert r.exit_code == 2 and r.stdout == ""
     lines = r.stderr.splitlines()
-    assert lines == [f"brdftab: error: {tmp_path / 'ro' / 'v.xml'}: cannot write in folder {tmp_path / 'ro'} "
-                     "(Permission denied)"]
+    expected = (f"brdftab: error: {tmp_path / 'ro' / 'v.xml'}: cannot write in folder {tmp_path / 'ro'} "
+                "(Permission denied)")
+    assert lines == [expected]
