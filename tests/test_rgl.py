@@ -183,7 +183,7 @@ def test_mitsuba_albedo_matches_quadrature_of_the_model(rgb_file):
         tabulation.append(own / ref - 1)
         total.append(got / ref - 1)
         held.append(directional_albedo(ours, wi, n_theta=128, n_phi=256) / ref - 1)
-    for label, err, bound in (("Mitsuba's sampled albedo vs the file's", sampling, 0.003),
+    for label, err, bound in (("Mitsuba's sampled albedo vs the file's", sampling, 0.005),
                               ("the file's albedo vs the model's", tabulation, 0.005),
                               ("Mitsuba's sampled albedo vs the model's", total, 0.005),
                               ("albedo of brdftab's reader (held f) vs the model's", held, 0.005)):
@@ -206,7 +206,7 @@ def test_mitsuba_spectral_matches_model_and_our_reader(files):
     path = files / "spectral.bsdf"
     brdftab.save(model, path)
     raw = parse_tensor(path.read_bytes())
-    assert "rgb" not in raw and raw["spectra"].shape == (1, 17, 7, 32, 32)
+    assert "rgb" not in raw and raw["spectra"].shape == (1, 17, 7, 48, 48)
     np.testing.assert_array_equal(raw["wavelengths"], np.float32([400, 450, 500, 550, 600, 650, 700]))
 
     wi, wo = direction_pairs(2, 0.3, 0.3, n=500)
@@ -405,12 +405,12 @@ def test_exact_at_the_stored_nodes(rgb_file):
     ok = wo[:, 2] > 1e-3
     ref = recipe_model().eval(wi[ok], wo[ok])
     # formats/rgl-bsdf.md, Guarantees, "Exact at the nodes". Measured: 2.6e-5 at edge nodes (the warp
-    # clamps the unit square to [2^-24, 1 - 2^-24]), 1.3e-5 inside (float32 tables)
+    # clamps the unit square to [2^-24, 1 - 2^-24]), 3.0e-5 inside (float32 tables)
     np.testing.assert_allclose(ours.values.reshape(-1, 3)[ok], ref, rtol=1e-4)
     inside = np.zeros(ours.values.shape[:4], bool)
     inside[:, :, 1:-1, 1:-1] = True
     inside = inside.ravel()[ok]
-    np.testing.assert_allclose(ours.values.reshape(-1, 3)[ok][inside], ref[inside], rtol=2e-5)
+    np.testing.assert_allclose(ours.values.reshape(-1, 3)[ok][inside], ref[inside], rtol=5e-5)
 
 
 def test_lambert_without_ndf_uses_backscattering(files):
@@ -551,7 +551,7 @@ def test_container_is_read_by_mitsubas_own_reader(rgb_file):
         dict.fromkeys(["theta_i", "phi_i", "ndf", "sigma", "vndf", "luminance", "rgb"], "float32")
     assert ours["jacobian"].tolist() == [1] and ours["phi_i"].tolist() == [0.0]
     assert ours["ndf"].shape == ours["sigma"].shape == (2, 128) and ours["vndf"].shape == (1, 17, 64, 64)
-    assert ours["rgb"].shape == (1, 17, 3, 32, 32) and ours["luminance"].shape == (1, 17, 32, 32)
+    assert ours["rgb"].shape == (1, 17, 3, 48, 48) and ours["luminance"].shape == (1, 17, 48, 48)
     np.testing.assert_allclose(np.degrees(ours["theta_i"][[0, -1]]), [0, 89], rtol=1e-6)
 
 
@@ -885,7 +885,7 @@ def test_f_is_held_near_the_horizon(files):
     path = files / "lambert-hold.bsdf"
     brdftab.save(create("lambert", albedo=0.99), path)
     ours = brdftab.open(path)
-    assert np.degrees(ours.theta_hold) == pytest.approx(90 - 180 / 32)
+    assert np.degrees(ours.theta_hold) == pytest.approx(90 - 180 / 48)
     f0 = 0.99 / np.pi
     th = np.radians(np.array([85.0, 88.0, 89.0, 89.5, 89.9, 89.99]))
     held, quotient = [], []
@@ -982,7 +982,7 @@ def _table(model, grid, path):
 
 def test_lambert_table_to_bsdf_up_to_grazing(files):
     """A Lambertian (albedo 0.99) *table* written to .bsdf and evaluated by Mitsuba: within 2 % of
-    ρ/π for every θi up to 85° with θo ≤ 60°, within 6 %, 8 % and 13 % at θo = 70°, 75° and 80°
+    ρ/π for every θi up to 85° with θo ≤ 60°, within 3 %, 4.5 % and 6 % at θo = 70°, 75° and 80°
     (formats/rgl-bsdf.md, Guarantees, "Tables"). The warp that followed the visible normals and
     ωo uniform over the hemisphere left m near the normal at grazing incidence one wide cell:
     0.75-0.8× at θi 70-85°, θo 60-75° near the mirror direction."""
@@ -1006,7 +1006,7 @@ def test_lambert_table_to_bsdf_up_to_grazing(files):
     print("Lambert table, Mitsuba, worst |f/(rho/pi) - 1| by θo: "
           + ", ".join(f"{k:g}°: {100 * v:.2f} %" for k, v in worst.items()))
     assert all(worst[to] < 0.02 for to in (0.0, 30.0, 60.0)), worst
-    assert worst[70.0] < 0.06 and worst[75.0] < 0.08 and worst[80.0] < 0.13, worst
+    assert worst[70.0] < 0.03 and worst[75.0] < 0.045 and worst[80.0] < 0.06, worst
 
 
 @pytest.mark.parametrize("spec, p95", [("torrance-sparrow-aluminum", 0.05), ("pyromark-he-torrance", 0.10)])
@@ -1054,3 +1054,32 @@ def test_single_incidence_table_is_refused(files):
     result = run("convert", files / "one-incidence.nc", target)
     one_error(result.stderr, result.returncode, "single incidence")
     assert not target.exists()
+
+
+def test_measured_file_round_trip_through_netcdf(files):
+    """A measured-like file in the RGL database's layout (8 θi, 32 × 32 samples, vndf 128 × 128)
+    converted to netCDF and back to .bsdf with the default options: Mitsuba's reading of the
+    new file reproduces the netCDF table at θi, θo ≤ 80° with a median below 1 % and a 95th
+    percentile below 10 %, in a file no more than twice the source's size (formats/rgl-bsdf.md,
+    Guarantees, "Tables")."""
+    from _measured import measured_bsdf
+
+    from brdftab.convert import convert
+
+    src, nc, out = files / "rgl-like.bsdf", files / "rgl-like.nc", files / "rgl-like-again.bsdf"
+    measured_bsdf(src, resolution=32, vndf_resolution=128)
+    convert(src, nc, progress=False)
+    convert(nc, out, progress=False)
+    table = brdftab.open(nc)
+    wi, wo = direction_pairs(11, 0.25, 0.25, 800)
+    keep = (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
+    wi, wo = wi[keep], wo[keep]
+    ref = np.asarray(table.eval(wi, wo), float) * wo[:, 2:3]
+    with mi.variant_context("scalar_rgb"):
+        got = mitsuba_eval(out, wi, wo)
+    big = np.abs(ref) > 1e-3 * np.percentile(np.abs(ref), 99)
+    rel = np.abs(got[big] - ref[big]) / np.abs(ref[big])
+    size, source_size = out.stat().st_size, src.stat().st_size
+    print(f"sizes: source {source_size} B, written {size} B")
+    assert_percentiles("measured-like .bsdf -> .nc -> .bsdf, Mitsuba vs the netCDF table", rel, {50: 0.01, 95: 0.10})
+    assert size <= 2 * source_size
