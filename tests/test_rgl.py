@@ -184,9 +184,9 @@ def test_mitsuba_albedo_matches_quadrature_of_the_model(rgb_file):
         total.append(got / ref - 1)
         held.append(directional_albedo(ours, wi, n_theta=128, n_phi=256) / ref - 1)
     for label, err, bound in (("Mitsuba's sampled albedo vs the file's", sampling, 0.005),
-                              ("the file's albedo vs the model's", tabulation, 0.005),
+                              ("the file's albedo vs the model's", tabulation, 0.002),
                               ("Mitsuba's sampled albedo vs the model's", total, 0.005),
-                              ("albedo of brdftab's reader (held f) vs the model's", held, 0.005)):
+                              ("albedo of brdftab's reader (held f) vs the model's", held, 0.002)):
         err = np.array(err)
         print(f"{label}: {np.array2string(100 * err, precision=2)} %")
         assert np.all(np.abs(err) < bound), (label, err)
@@ -879,9 +879,9 @@ def test_fuzz_through_the_registry(files, small_fields):
 def test_f_is_held_near_the_horizon(files):
     """The quotient (f·cosθo)/cosθo grows without bound at grazing ωo; the reader holds f beyond
     θ_hold = 90° − 180°/resolution (formats/rgl-bsdf.md, Guarantees, "f near the horizon"): a
-    Lambertian's file then reads within 25 % of its f at every θo, θi <= 80° and azimuth
-    (the file's own error at θ_hold), where the quotient is about 1.4× too large at 89° and
-    9× at 89.9° (medians)."""
+    Lambertian's file then reads within 15 % of its f at every θo, θi <= 80° and azimuth
+    (the file's own error at θ_hold), where the quotient is about 1.3× too large at 89° and
+    8× at 89.9° (medians)."""
     path = files / "lambert-hold.bsdf"
     brdftab.save(create("lambert", albedo=0.99), path)
     ours = brdftab.open(path)
@@ -899,8 +899,8 @@ def test_f_is_held_near_the_horizon(files):
     held, quotient = np.array(held), np.median(quotient, axis=0)
     print(f"held f / (rho/pi): [{held.min():.3f}, {held.max():.3f}]; quotient (median) at 89°, 89.9°: "
           f"{quotient[2]:.2f}, {quotient[4]:.2f}")
-    assert np.all(np.abs(held - 1) < 0.25), (held.min(), held.max())
-    assert 1.2 < quotient[2] < 1.6 and 7 < quotient[4] < 11, quotient  # the blow-up the hold removes
+    assert np.all(np.abs(held - 1) < 0.15), (held.min(), held.max())
+    assert 1.2 < quotient[2] < 1.45 and 6.5 < quotient[4] < 9, quotient  # the blow-up the hold removes
 
 
 @pytest.mark.parametrize("theta_i", [30.0, 70.0, 89.0])
@@ -930,7 +930,7 @@ def test_albedo_of_a_file_matches_mitsubas_and_a_resolved_quadrature(files, thet
     fine = ours.eval(np.broadcast_to(wi, wo.shape), wo).T @ w
     print(f"held albedo vs a fine quadrature, θi = {theta_i:g}°: "
           f"{np.array2string(100 * (got / fine - 1), precision=2)} %")
-    np.testing.assert_allclose(got, fine, rtol=0.005)
+    np.testing.assert_allclose(got, fine, rtol=0.003)
 
 
 def test_a_measured_file_declares_nothing_it_does_not_record(files):
@@ -949,8 +949,8 @@ def test_a_measured_file_declares_nothing_it_does_not_record(files):
 
 def test_lambert_file_albedo_up_to_grazing_incidence(files):
     """formats/rgl-bsdf.md, Guarantees, "Grazing incidence": a Lambertian's albedo from its file,
-    by brdftab's reader (held f) and as Mitsuba evaluates the file (eval_cos), is within 0.6 %
-    up to θi = 80° and within 2 % at 85–89.5° (the default θi nodes reach 89°; beyond, Mitsuba
+    by brdftab's reader (held f) and as Mitsuba evaluates the file (eval_cos), is within 0.2 %
+    up to θi = 80° and within 1 % at 85–89.5° (the default θi nodes reach 89°; beyond, Mitsuba
     clamps to the last node)."""
     from brdftab.integrate import directional_albedo as albedo
 
@@ -964,8 +964,8 @@ def test_lambert_file_albedo_up_to_grazing_incidence(files):
           f"eval_cos: {np.array2string(100 * own, precision=2)} %")
     low = ths <= 80.0
     for err in (held, own):
-        assert np.all(np.abs(err[low]) < 0.006), err
-        assert np.all(np.abs(err[~low]) < 0.02), err
+        assert np.all(np.abs(err[low]) < 0.002), err
+        assert np.all(np.abs(err[~low]) < 0.01), err
 
 
 # ---------------------------------------------------------------------------------------------
