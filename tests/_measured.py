@@ -40,11 +40,14 @@ def base_model():
                                   m.create("microfacet", alpha=0.25, fresnel="schlick", f0=[0.5, 0.4, 0.3])])
 
 
-def measured_bsdf(path, asym: float = ASYM, negatives: int = 40, provenance: bool = False):
-    """Write a measured-like RGB ``.bsdf`` to ``path``; returns the model it samples."""
+def measured_bsdf(path, asym: float = ASYM, negatives: int = 40, provenance: bool = False, **options):
+    """Write a measured-like RGB ``.bsdf`` to ``path``; returns the model it samples.
+    ``options`` override the format options (e.g. the RGL database's layout: ``resolution=32,
+    vndf_resolution=128``)."""
     model = Asymmetric(base_model(), asym)
-    payload = rgl.prepare_rgl(model, n_theta_i=8, theta_i_max_deg=THETA_I_MAX_DEG, resolution=24,
-                              description="synthetic measurement")
+    opts = dict(n_theta_i=8, theta_i_max_deg=THETA_I_MAX_DEG, resolution=24, description="synthetic measurement")
+    opts.update(options)
+    payload = rgl.prepare_rgl(model, **opts)
     fields = dict(payload.fields)
     if not provenance:
         fields.pop("provenance")

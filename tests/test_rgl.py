@@ -146,7 +146,7 @@ def test_mitsuba_rgb_matches_model_and_our_reader(rgb_file):
     analytic = model.eval(wi, wo) * wo[:, 2:3]
     rel, _ = rel_errors(ref, analytic, 1e-4)
     # formats/rgl-bsdf.md, Guarantees, table row "GGX α = 0.3 ... RGB"
-    assert_percentiles("recipe RGB, Mitsuba vs model", rel, {50: 0.005, 75: 0.012, 90: 0.03, 95: 0.05})
+    assert_percentiles("recipe RGB, Mitsuba vs model", rel, {50: 0.002, 75: 0.005, 90: 0.012, 95: 0.03})
 
     ours = brdftab.open(rgb_file)
     assert isinstance(ours, rgl.RGLBSDF) and ours.isotropic and ours.channels == ("R", "G", "B")
@@ -183,10 +183,10 @@ def test_mitsuba_albedo_matches_quadrature_of_the_model(rgb_file):
         tabulation.append(own / ref - 1)
         total.append(got / ref - 1)
         held.append(directional_albedo(ours, wi, n_theta=128, n_phi=256) / ref - 1)
-    for label, err, bound in (("Mitsuba's sampled albedo vs the file's", sampling, 0.003),
-                              ("the file's albedo vs the model's", tabulation, 0.005),
+    for label, err, bound in (("Mitsuba's sampled albedo vs the file's", sampling, 0.005),
+                              ("the file's albedo vs the model's", tabulation, 0.002),
                               ("Mitsuba's sampled albedo vs the model's", total, 0.005),
-                              ("albedo of brdftab's reader (held f) vs the model's", held, 0.005)):
+                              ("albedo of brdftab's reader (held f) vs the model's", held, 0.002)):
         err = np.array(err)
         print(f"{label}: {np.array2string(100 * err, precision=2)} %")
         assert np.all(np.abs(err) < bound), (label, err)
@@ -206,7 +206,7 @@ def test_mitsuba_spectral_matches_model_and_our_reader(files):
     path = files / "spectral.bsdf"
     brdftab.save(model, path)
     raw = parse_tensor(path.read_bytes())
-    assert "rgb" not in raw and raw["spectra"].shape == (1, 17, 7, 32, 32)
+    assert "rgb" not in raw and raw["spectra"].shape == (1, 17, 7, 48, 48)
     np.testing.assert_array_equal(raw["wavelengths"], np.float32([400, 450, 500, 550, 600, 650, 700]))
 
     wi, wo = direction_pairs(2, 0.3, 0.3, n=500)
@@ -216,7 +216,7 @@ def test_mitsuba_spectral_matches_model_and_our_reader(files):
     analytic = model.eval(wi, wo, lam) * wo[:, 2:3]
     rel, _ = rel_errors(ref, analytic, 1e-4)
     # formats/rgl-bsdf.md, Guarantees, table row "the same, spectral"
-    assert_percentiles("recipe spectral, Mitsuba vs model", rel, {50: 0.005, 75: 0.012, 90: 0.03, 95: 0.05})
+    assert_percentiles("recipe spectral, Mitsuba vs model", rel, {50: 0.002, 75: 0.005, 90: 0.012, 95: 0.02})
     ours = brdftab.open(path)
     assert ours.spectral and ours.channels is None
     assert_reader_is_mitsuba(ours.eval_cos(wi, wo, lam), ref)
@@ -253,7 +253,7 @@ def test_mitsuba_anisotropic_matches_model_and_our_reader(files):
     analytic = model.eval(wi, wo) * wo[:, 2:3]
     rel, _ = rel_errors(ref, analytic, 1e-4)
     # formats/rgl-bsdf.md, Guarantees, table row "GGX αx = 0.15, αy = 0.4"
-    assert_percentiles("GGX 0.15/0.4, Mitsuba vs model", rel, {50: 0.005, 75: 0.02, 90: 0.06, 95: 0.2})
+    assert_percentiles("GGX 0.15/0.4, Mitsuba vs model", rel, {50: 0.0025, 75: 0.01, 90: 0.05, 95: 0.09})
     swapped = create("microfacet", alpha_x=0.4, alpha_y=0.15, fresnel="schlick", f0=[0.9, 0.6, 0.3])
     rel_sw, _ = rel_errors(ref, swapped.eval(wi, wo) * wo[:, 2:3], 1e-4)
     assert np.median(rel_sw) > 0.1  # the test tells the axes apart
@@ -277,9 +277,9 @@ def test_narrow_anisotropic_lobe(files):
     big = np.abs(analytic) > 1e-4 * np.abs(analytic).max()
     rel = np.where(big, np.abs(ref - analytic) / np.where(big, analytic, 1.0), np.nan)
     steep = (np.minimum(wi[:, 2], wo[:, 2]) < np.cos(np.radians(80.0)))[:, None] & big
-    assert_percentiles("narrow lobe, all pairs", rel[big], {50: 0.005, 95: 0.13})
-    assert_percentiles("narrow lobe, θi, θo <= 80°", rel[big & ~steep], {50: 0.004, 75: 0.01, 95: 0.03})
-    assert_percentiles("narrow lobe, θi or θo > 80°", rel[steep], {50: 0.04, 95: 0.25})
+    assert_percentiles("narrow lobe, all pairs", rel[big], {50: 0.003, 95: 0.05})
+    assert_percentiles("narrow lobe, θi, θo <= 80°", rel[big & ~steep], {50: 0.0025, 75: 0.005, 95: 0.013})
+    assert_percentiles("narrow lobe, θi or θo > 80°", rel[steep], {50: 0.017, 95: 0.2})
     coarse = rgl.RGLBSDF(rgl.prepare_rgl(model, ndf_phi_resolution=64).fields)
     rel64 = np.abs(coarse.eval_cos(wi, wo) - analytic)[big] / analytic[big]
     print(f"narrow lobe, median with 64 ndf rows / with 256: {np.median(rel64) / np.median(rel[big]):.1f}")
@@ -301,10 +301,10 @@ def grazing_pairs(seed, which, lo, hi, n=400):
 #: formats/rgl-bsdf.md, Guarantees, "Grazing directions": (direction, band in degrees) ->
 #: tested bounds of the relative error of Mitsuba's f·cosθo, per source model.
 GRAZING_BOUNDS = {
-    ("o", 80.0, 87.0): {"recipe": {50: 0.04, 95: 0.25}, "lambert": {50: 0.05, 95: 0.3}},
-    ("o", 87.0, 89.5): {"recipe": {50: 0.4, 95: 2.5}, "lambert": {50: 0.55, 95: 2.8}},
-    ("i", 80.0, 87.0): {"recipe": {50: 0.005, 95: 0.07}, "lambert": {50: 0.005, 95: 0.09}},
-    ("i", 87.0, 89.9): {"recipe": {50: 0.005, 95: 0.35}, "lambert": {50: 0.005, 95: 0.5}},
+    ("o", 80.0, 87.0): {"recipe": {50: 0.02, 95: 0.09}, "lambert": {50: 0.023, 95: 0.1}},
+    ("o", 87.0, 89.5): {"recipe": {50: 0.18, 95: 1.5}, "lambert": {50: 0.21, 95: 1.25}},
+    ("i", 80.0, 87.0): {"recipe": {50: 0.002, 95: 0.03}, "lambert": {50: 0.002, 95: 0.05}},
+    ("i", 87.0, 89.9): {"recipe": {50: 0.002, 95: 0.045}, "lambert": {50: 0.002, 95: 0.06}},
 }
 
 
@@ -330,7 +330,7 @@ def test_grazing_directions(files, rgb_file, source):
         if which == "i" and lo == 87.0:
             near = big & (wo[:, 2] >= np.cos(np.radians(70.0)))[:, None]
             rel = np.abs(ref - analytic)[near] / analytic[near]
-            assert_percentiles(f"{source}, θi in [{lo:g}, {hi:g}]°, θo <= 70°", rel, {50: 0.005, 95: 0.03})
+            assert_percentiles(f"{source}, θi in [{lo:g}, {hi:g}]°, θo <= 70°", rel, {50: 0.002, 95: 0.025})
 
 
 @pytest.mark.parametrize("reduction, keep", [(2, slice(0, 9)), (4, slice(0, 5))])
@@ -351,7 +351,7 @@ def test_reduced_anisotropic_files_are_mirrored_like_mitsuba(files, reduction, k
     assert ours.reduction == reduction
     assert_reader_is_mitsuba(ours.eval_cos(wi, wo), ref)
     rel, _ = rel_errors(ref, model.eval(wi, wo) * wo[:, 2:3], 1e-4)
-    assert_percentiles(f"reduction {reduction}, Mitsuba vs model", rel, {50: 0.01})
+    assert_percentiles(f"reduction {reduction}, Mitsuba vs model", rel, {50: 0.006})
 
 
 class Chiral(BRDF):
@@ -390,7 +390,7 @@ def test_relative_azimuth_convention_with_a_chiral_brdf(files):
         ref = mitsuba_eval(path, wi, wo)
     analytic = np.repeat(model.eval(wi, wo) * wo[:, 2:3], 3, axis=1)  # grey: written as R = G = B
     rel, _ = rel_errors(ref, analytic, 1e-4)
-    assert_percentiles("chiral, Mitsuba vs model", rel, {50: 0.01})
+    assert_percentiles("chiral, Mitsuba vs model", rel, {50: 0.004})
     mirrored = np.repeat(model.eval(wi * [1, -1, 1], wo * [1, -1, 1]) * wo[:, 2:3], 3, axis=1)
     assert np.median(rel_errors(ref, mirrored, 1e-4)[0]) > 0.05
     assert_reader_is_mitsuba(brdftab.open(path).eval_cos(wi, wo), ref)
@@ -405,12 +405,12 @@ def test_exact_at_the_stored_nodes(rgb_file):
     ok = wo[:, 2] > 1e-3
     ref = recipe_model().eval(wi[ok], wo[ok])
     # formats/rgl-bsdf.md, Guarantees, "Exact at the nodes". Measured: 2.6e-5 at edge nodes (the warp
-    # clamps the unit square to [2^-24, 1 - 2^-24]), 1.3e-5 inside (float32 tables)
+    # clamps the unit square to [2^-24, 1 - 2^-24]), 3.0e-5 inside (float32 tables)
     np.testing.assert_allclose(ours.values.reshape(-1, 3)[ok], ref, rtol=1e-4)
     inside = np.zeros(ours.values.shape[:4], bool)
     inside[:, :, 1:-1, 1:-1] = True
     inside = inside.ravel()[ok]
-    np.testing.assert_allclose(ours.values.reshape(-1, 3)[ok][inside], ref[inside], rtol=2e-5)
+    np.testing.assert_allclose(ours.values.reshape(-1, 3)[ok][inside], ref[inside], rtol=5e-5)
 
 
 def test_lambert_without_ndf_uses_backscattering(files):
@@ -425,7 +425,7 @@ def test_lambert_without_ndf_uses_backscattering(files):
         ref = mitsuba_eval(path, wi, wo)
     rel, _ = rel_errors(ref, model.eval(wi, wo) * wo[:, 2:3], 1e-4)
     # formats/rgl-bsdf.md, Guarantees, table row "Lambert"
-    assert_percentiles("Lambert, Mitsuba vs model", rel, {50: 0.01, 75: 0.02, 90: 0.06, 95: 0.13})
+    assert_percentiles("Lambert, Mitsuba vs model", rel, {50: 0.003, 75: 0.006, 90: 0.02, 95: 0.045})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -551,7 +551,7 @@ def test_container_is_read_by_mitsubas_own_reader(rgb_file):
         dict.fromkeys(["theta_i", "phi_i", "ndf", "sigma", "vndf", "luminance", "rgb"], "float32")
     assert ours["jacobian"].tolist() == [1] and ours["phi_i"].tolist() == [0.0]
     assert ours["ndf"].shape == ours["sigma"].shape == (2, 128) and ours["vndf"].shape == (1, 17, 64, 64)
-    assert ours["rgb"].shape == (1, 17, 3, 32, 32) and ours["luminance"].shape == (1, 17, 32, 32)
+    assert ours["rgb"].shape == (1, 17, 3, 48, 48) and ours["luminance"].shape == (1, 17, 48, 48)
     np.testing.assert_allclose(np.degrees(ours["theta_i"][[0, -1]]), [0, 89], rtol=1e-6)
 
 
@@ -635,7 +635,7 @@ def test_copy_is_exact_and_conversion_tabulates_the_reader(files, rgb_file):
     analytic = recipe_model().eval(wi, wo)
     ok = (wi[:, 2] > 0.1) & (wo[:, 2] > 0.1)
     rel, _ = rel_errors(back.values.reshape(-1, 3)[ok], analytic[ok], 1e-4)
-    assert_percentiles(".bsdf -> netCDF vs model", rel, {50: 0.01})
+    assert_percentiles(".bsdf -> netCDF vs model", rel, {50: 0.002})
     assert json.loads(back.ds.attrs["parameters"])["source_model"]["model"] == "sum"
 
 
@@ -660,7 +660,7 @@ def test_bsdf_to_merl(files, rgb_file):
     model = recipe_model()
     wi, wo = direction_pairs(8, 0.3, 0.3, n=300)
     rel, _ = rel_errors(merl.eval(wi, wo), model.eval(wi, wo), 1e-4)
-    assert_percentiles(".bsdf -> MERL vs model", rel, {50: 0.01})
+    assert_percentiles(".bsdf -> MERL vs model", rel, {50: 0.003})
 
 
 def test_info_describes_the_file(rgb_file):
@@ -879,13 +879,13 @@ def test_fuzz_through_the_registry(files, small_fields):
 def test_f_is_held_near_the_horizon(files):
     """The quotient (f·cosθo)/cosθo grows without bound at grazing ωo; the reader holds f beyond
     θ_hold = 90° − 180°/resolution (formats/rgl-bsdf.md, Guarantees, "f near the horizon"): a
-    Lambertian's file then reads within 25 % of its f at every θo, θi <= 80° and azimuth
-    (the file's own error at θ_hold), where the quotient is about 1.4× too large at 89° and
-    9× at 89.9° (medians)."""
+    Lambertian's file then reads within 15 % of its f at every θo, θi <= 80° and azimuth
+    (the file's own error at θ_hold), where the quotient is about 1.3× too large at 89° and
+    8× at 89.9° (medians)."""
     path = files / "lambert-hold.bsdf"
     brdftab.save(create("lambert", albedo=0.99), path)
     ours = brdftab.open(path)
-    assert np.degrees(ours.theta_hold) == pytest.approx(90 - 180 / 32)
+    assert np.degrees(ours.theta_hold) == pytest.approx(90 - 180 / 48)
     f0 = 0.99 / np.pi
     th = np.radians(np.array([85.0, 88.0, 89.0, 89.5, 89.9, 89.99]))
     held, quotient = [], []
@@ -899,8 +899,8 @@ def test_f_is_held_near_the_horizon(files):
     held, quotient = np.array(held), np.median(quotient, axis=0)
     print(f"held f / (rho/pi): [{held.min():.3f}, {held.max():.3f}]; quotient (median) at 89°, 89.9°: "
           f"{quotient[2]:.2f}, {quotient[4]:.2f}")
-    assert np.all(np.abs(held - 1) < 0.25), (held.min(), held.max())
-    assert 1.2 < quotient[2] < 1.6 and 7 < quotient[4] < 11, quotient  # the blow-up the hold removes
+    assert np.all(np.abs(held - 1) < 0.15), (held.min(), held.max())
+    assert 1.2 < quotient[2] < 1.45 and 6.5 < quotient[4] < 9, quotient  # the blow-up the hold removes
 
 
 @pytest.mark.parametrize("theta_i", [30.0, 70.0, 89.0])
@@ -930,7 +930,7 @@ def test_albedo_of_a_file_matches_mitsubas_and_a_resolved_quadrature(files, thet
     fine = ours.eval(np.broadcast_to(wi, wo.shape), wo).T @ w
     print(f"held albedo vs a fine quadrature, θi = {theta_i:g}°: "
           f"{np.array2string(100 * (got / fine - 1), precision=2)} %")
-    np.testing.assert_allclose(got, fine, rtol=0.005)
+    np.testing.assert_allclose(got, fine, rtol=0.003)
 
 
 def test_a_measured_file_declares_nothing_it_does_not_record(files):
@@ -949,8 +949,8 @@ def test_a_measured_file_declares_nothing_it_does_not_record(files):
 
 def test_lambert_file_albedo_up_to_grazing_incidence(files):
     """formats/rgl-bsdf.md, Guarantees, "Grazing incidence": a Lambertian's albedo from its file,
-    by brdftab's reader (held f) and as Mitsuba evaluates the file (eval_cos), is within 0.6 %
-    up to θi = 80° and within 2 % at 85–89.5° (the default θi nodes reach 89°; beyond, Mitsuba
+    by brdftab's reader (held f) and as Mitsuba evaluates the file (eval_cos), is within 0.2 %
+    up to θi = 80° and within 1 % at 85–89.5° (the default θi nodes reach 89°; beyond, Mitsuba
     clamps to the last node)."""
     from brdftab.integrate import directional_albedo as albedo
 
@@ -964,8 +964,8 @@ def test_lambert_file_albedo_up_to_grazing_incidence(files):
           f"eval_cos: {np.array2string(100 * own, precision=2)} %")
     low = ths <= 80.0
     for err in (held, own):
-        assert np.all(np.abs(err[low]) < 0.006), err
-        assert np.all(np.abs(err[~low]) < 0.02), err
+        assert np.all(np.abs(err[low]) < 0.002), err
+        assert np.all(np.abs(err[~low]) < 0.01), err
 
 
 # ---------------------------------------------------------------------------------------------
@@ -982,7 +982,7 @@ def _table(model, grid, path):
 
 def test_lambert_table_to_bsdf_up_to_grazing(files):
     """A Lambertian (albedo 0.99) *table* written to .bsdf and evaluated by Mitsuba: within 2 % of
-    ρ/π for every θi up to 85° with θo ≤ 60°, within 6 %, 8 % and 13 % at θo = 70°, 75° and 80°
+    ρ/π for every θi up to 85° with θo ≤ 60°, within 3 %, 4.5 % and 6 % at θo = 70°, 75° and 80°
     (formats/rgl-bsdf.md, Guarantees, "Tables"). The warp that followed the visible normals and
     ωo uniform over the hemisphere left m near the normal at grazing incidence one wide cell:
     0.75-0.8× at θi 70-85°, θo 60-75° near the mirror direction."""
@@ -1006,10 +1006,10 @@ def test_lambert_table_to_bsdf_up_to_grazing(files):
     print("Lambert table, Mitsuba, worst |f/(rho/pi) - 1| by θo: "
           + ", ".join(f"{k:g}°: {100 * v:.2f} %" for k, v in worst.items()))
     assert all(worst[to] < 0.02 for to in (0.0, 30.0, 60.0)), worst
-    assert worst[70.0] < 0.06 and worst[75.0] < 0.08 and worst[80.0] < 0.13, worst
+    assert worst[70.0] < 0.03 and worst[75.0] < 0.045 and worst[80.0] < 0.06, worst
 
 
-@pytest.mark.parametrize("spec, p95", [("torrance-sparrow-aluminum", 0.05), ("pyromark-he-torrance", 0.10)])
+@pytest.mark.parametrize("spec, p95", [("torrance-sparrow-aluminum", 0.02), ("pyromark-he-torrance", 0.05)])
 def test_shipped_tables_convert_to_bsdf(files, spec, p95):
     """The shipped Torrance-Sparrow and He-Torrance (4.5° cone) specs tabulated and converted to
     .bsdf: not refused (the Torrance-Sparrow file's albedo was 1.58 at 89° against the model's
@@ -1037,7 +1037,7 @@ def test_shipped_tables_convert_to_bsdf(files, spec, p95):
         got = mitsuba_eval(out, wi, wo)[:, :1]
     big = ref > 1e-3 * np.percentile(ref, 99)
     rel = np.abs(got[big] - ref[big]) / ref[big]
-    assert_percentiles(f"{spec} table -> .bsdf, Mitsuba vs table", rel, {50: 0.01, 95: p95})
+    assert_percentiles(f"{spec} table -> .bsdf, Mitsuba vs table", rel, {50: 0.006, 95: p95})
 
 
 def test_single_incidence_table_is_refused(files):
@@ -1054,3 +1054,55 @@ def test_single_incidence_table_is_refused(files):
     result = run("convert", files / "one-incidence.nc", target)
     one_error(result.stderr, result.returncode, "single incidence")
     assert not target.exists()
+    # incidences 20-60°: short of the file's 0-89°, refused naming the option that fits it
+    grid = SphericalGrid(np.radians([20.0, 40.0, 60.0]), [0.0], np.radians(np.arange(0.0, 90.0, 5.0)),
+                         np.radians(np.arange(0.0, 360.0, 10.0)))
+    _table(create("lambert", albedo=0.5), grid, files / "three-incidences.nc")
+    result = run("convert", files / "three-incidences.nc", target)
+    one_error(result.stderr, result.returncode, "20 to 60 deg", "theta_i_deg")
+    assert not target.exists()
+
+
+def test_a_model_without_back_scattering_gets_a_flat_ndf(files):
+    """Upright mirror pyramids scatter next to nothing back (f(ω, ω) below 1e-6 of the BRDF's
+    largest values: a power iteration on it gives a spike of D where the facet roughness leaks
+    1e-11): the file gets the flat D = 1/π, and Mitsuba reads it."""
+    model = create("pyramid-microfacet", facet_roughness=0.015, max_bounces=3, fresnel="none")
+    payload = rgl.prepare_rgl(model, n_theta_i=4, n_phi_i=5, resolution=12, vndf_resolution=16, ndf_resolution=16,
+                              ndf_phi_resolution=8)
+    np.testing.assert_allclose(payload.fields["ndf"], 1.0 / np.pi, rtol=1e-6)
+    path = files / "pyramids.bsdf"
+    path.write_bytes(encode_tensor(payload.fields))
+    wi, wo = direction_pairs(3, 0.3, 0.3, 40)
+    with mi.variant_context("scalar_rgb"):
+        ref = mitsuba_eval(path, wi, wo)
+    assert_reader_is_mitsuba(brdftab.open(path).eval_cos(wi, wo), ref)
+
+
+def test_measured_file_round_trip_through_netcdf(files):
+    """A measured-like file in the RGL database's layout (8 θi, 32 × 32 samples, vndf 128 × 128)
+    converted to netCDF and back to .bsdf with the default options: Mitsuba's reading of the
+    new file reproduces the netCDF table at θi, θo ≤ 80° with a median below 1 % and a 95th
+    percentile below 10 %, in a file no more than twice the source's size (formats/rgl-bsdf.md,
+    Guarantees, "Tables")."""
+    from _measured import measured_bsdf
+
+    from brdftab.convert import convert
+
+    src, nc, out = files / "rgl-like.bsdf", files / "rgl-like.nc", files / "rgl-like-again.bsdf"
+    measured_bsdf(src, resolution=32, vndf_resolution=128)
+    convert(src, nc, progress=False)
+    convert(nc, out, progress=False)
+    table = brdftab.open(nc)
+    wi, wo = direction_pairs(11, 0.25, 0.25, 800)
+    keep = (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
+    wi, wo = wi[keep], wo[keep]
+    ref = np.asarray(table.eval(wi, wo), float) * wo[:, 2:3]
+    with mi.variant_context("scalar_rgb"):
+        got = mitsuba_eval(out, wi, wo)
+    big = np.abs(ref) > 1e-3 * np.percentile(np.abs(ref), 99)
+    rel = np.abs(got[big] - ref[big]) / np.abs(ref[big])
+    size, source_size = out.stat().st_size, src.stat().st_size
+    print(f"sizes: source {source_size} B, written {size} B")
+    assert_percentiles("measured-like .bsdf -> .nc -> .bsdf, Mitsuba vs the netCDF table", rel, {50: 0.01, 95: 0.10})
+    assert size <= 2 * source_size

@@ -16,7 +16,7 @@ DEFAULTS = {
     "n_theta_i": 17,           # incident elevations over [0, theta_i_max_deg] (theta_i_nodes)
     "theta_i_max_deg": 89.0,
     "n_phi_i": 17,             # anisotropic files: incident azimuths over [-180°, 180°]
-    "resolution": 32,          # N × N stored samples per incident direction
+    "resolution": 48,          # N × N stored samples per incident direction
     "vndf_resolution": 64,     # VNDF table per incident direction
     "ndf_resolution": 128,     # ndf / sigma along θ
     "ndf_phi_resolution": 256,  # ndf / sigma along φ (anisotropic files; isotropic files use 2 rows)

@@ -107,12 +107,12 @@ def _validate(fields: dict, where: str):
     for name in ("vndf", "luminance"):
         a = f[name].astype(np.float64).reshape(n_phi * n_theta, -1)
         top = a.max(axis=1)
-        if np.any(top <= 0):
-            raise FormatError(f"{where}: field {name!r} has an all-zero slice (it is a density)")
         # rounding-sized negatives (1e-6 of the slice's largest value; the RGL database has
         # some of -4e-10) are accepted, as Mitsuba accepts them
-        if np.any(a < -1e-6 * top[:, None]):
+        if np.any(a < -1e-6 * np.maximum(top, 0.0)[:, None]):
             raise FormatError(f"{where}: field {name!r} has negative values (it is a density)")
+        if np.any(top <= 0):
+            raise FormatError(f"{where}: field {name!r} has an all-zero slice (it is a density)")
     return f, spectral, key, reduction
 
 

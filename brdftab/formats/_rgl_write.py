@@ -43,6 +43,7 @@ NDF_FLOOR = 1e-6
 #: incidence (|dωo/du_m| vanishes there like u³ and with ⟨ωi·m⟩).
 WARP_UNIFORM = 0.5
 WARP_SQUARE = 0.5
+WARP_PER_ROW = True
 
 
 @dataclass
@@ -167,9 +168,29 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None):
     if eps > 0:
         wo_z = 2.0 * dot * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
         above = (wo_z > 0) & (dot > 0)
-        vndf = (1.0 - eps) * vndf + eps * (WARP_SQUARE * unit_mean(np.where(above, 1.0, 0.0))
-                                           + (1.0 - WARP_SQUARE) * unit_mean(np.where(above, dot * jac[None, None], 0.0)))
+        even = (WARP_SQUARE * unit_mean(np.where(above, 1.0, 0.0))
+                + (1.0 - WARP_SQUARE) * unit_mean(np.where(above, dot * jac[None, None], 0.0)))
+        if WARP_PER_ROW:
+            vndf = _mix_per_row(vndf, even, eps)
+        else:
+            vndf = (1.0 - eps) * vndf + eps * even
     return vndf.astype(np.float32)
+
+
+def _mix_per_row(a, b, eps):
+    """The density whose marginal over rows (φm) is (1 − ε)·a's + ε·b's and whose conditional
+    along each row (θm) is (1 − ε)·a's + ε·b's: every row keeps the share ε of its columns
+    spread as ``b`` spreads them, however much ``a`` concentrates elsewhere in the row."""
+    def split(t):
+        row = t.mean(axis=3, keepdims=True)
+        cond = np.where(row > 0, t / np.where(row > 0, row, 1.0), 0.0)
+        return row / row.mean(axis=2, keepdims=True), cond
+
+    ra, ca = split(a)
+    rb, cb = split(b)
+    has_b = rb > 0
+    cond = np.where(has_b, (1.0 - eps) * ca + eps * cb, ca)
+    return ((1.0 - eps) * ra + eps * rb) * cond
 
 
 def _luminance(spectra32, lam, weight):
