@@ -59,17 +59,20 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rays", type=int, default=10_000, help="rays per tile and node")
     ap.add_argument("--tiles", type=int, default=16, help="random tiles of 1000 pyramids")
+    ap.add_argument("--theta-deg", type=float, nargs="+", default=THETA_DEG, help="θ nodes (first 0 or above)")
+    ap.add_argument("--phi-deg", type=float, nargs="+", default=PHI_DEG, help="φ nodes in 0 … 45")
     ap.add_argument("--out", type=Path, default=TABLE)
     args = ap.parse_args(argv)
+    theta_deg, phi_deg = np.asarray(args.theta_deg, float), np.asarray(args.phi_deg, float)
     fields = [PyramidField(PYRAMIDS, seed=FIELD_SEED + t) for t in range(args.tiles)]
-    nt, nph = THETA_DEG.size, PHI_DEG.size
+    nt, nph = theta_deg.size, phi_deg.size
     first = np.zeros((nt, nph, 4))
     esc = np.zeros((nt, nph, n_codes(DEPTH)))
     ins = np.zeros((nt, nph, 4 ** DEPTH))
     start = time.time()
     node = 0
-    for i, th in enumerate(THETA_DEG):
-        for j, ph in enumerate(PHI_DEG):
+    for i, th in enumerate(theta_deg):
+        for j, ph in enumerate(phi_deg):
             if th == 0 and j > 0:
                 first[i, j], esc[i, j], ins[i, j] = first[i, 0], esc[i, 0], ins[i, 0]
                 continue
@@ -80,11 +83,11 @@ def main(argv=None):
             # diagonal mirror at φ = 45°; all eight at normal incidence
             ops = range(8) if th == 0 else (0, 7) if ph == 0 else (0, 1) if ph == 45 else (0,)
             first[i, j], esc[i, j], ins[i, j] = symmetrize(f, e, n, ops)
-            print(f"θ {th:4.0f}° φ {ph:4.0f}°  first {np.round(first[i, j], 4)}  {time.time() - start:6.0f} s",
+            print(f"θ {th:4.1f}° φ {ph:4.1f}°  first {np.round(first[i, j], 4)}  {time.time() - start:6.0f} s",
                   flush=True)
     meta = dict(rays_per_tile=args.rays, tiles=args.tiles, pyramids=PYRAMIDS, field_seed=FIELD_SEED,
                 ray_seed=RAY_SEED)
-    WalkTable(np.radians(THETA_DEG), np.radians(PHI_DEG), DEPTH, first, esc, ins, meta).save(args.out)
+    WalkTable(np.radians(theta_deg), np.radians(phi_deg), DEPTH, first, esc, ins, meta).save(args.out)
     print(f"wrote {args.out} ({args.out.stat().st_size} bytes) in {time.time() - start:.0f} s")
 
 

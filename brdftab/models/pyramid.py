@@ -35,7 +35,9 @@ registered parts:
   directions by successive mirror reflections about the facet normals (Eq. 3.9) over face
   sequences up to ``max_bounces`` (default 3, at most 6; 1 keeps the single-bounce term only),
   pruning back-face hits (face j is hit only when ⟨d, f_j⟩ < 0 for the travelling direction d,
-  which also excludes repeats).
+  which also excludes repeats). How much energy each sequence carries is a random walk over
+  the faces: ``walk = "traced"`` (default) takes it from a ray tracer of the random array,
+  ``"height-correlated"`` and ``"uncorrelated"`` from a Smith microsurface (below).
 
 Corrections of the thesis' formulas [DeHaas2024] (models.md §5.6)
 -----------------------------------------------------------------
@@ -57,7 +59,30 @@ Corrections of the thesis' formulas [DeHaas2024] (models.md §5.6)
   probability is exact in closed form (where two exponents come within 1e-7 one is moved by
   3e-7).
 * The thesis' "20 of 64" surviving 3-bounce sequences hold only at normal incidence: with this
-  pruning 20 survive at normal incidence, 8 at 45°/0° and 7 at 45°/25° (tests).
+  pruning 20 survive at normal incidence, 8 at 45°/0° and 7 at 45°/25° (tests, with the two
+  walks above; the traced walk also leaves out sequences the tracer does not see).
+
+The traced walk (default)
+-------------------------
+A Smith microsurface is not the random pyramid array: its walks put up to twice (up to 4×
+away from the thesis' incidences) the tracer's energy in some exit clusters (table below).
+``walk = "traced"`` keeps the first hit (face k with probability a_k T_k(ωi) / S(ωi), which
+the tracer's first hits match to 0.004: tests) and takes every later branch — escape after the
+sequence s, or go on to face j — from the ray tracer of the random array
+(:mod:`~brdftab.models.pyramid_tracer`): ``pyramid_walk.npz``, made by
+``tools/make_pyramid_walk.py`` (16 tiles of 1000 pyramids, 160 000 rays per node, fields and
+rays of seeds of their own), holds the fractions of the rays escaping after each sequence of up
+to 3 bounces at incidence nodes θ = 0, 3.5, …, 84, 87, 89° and φ = 0, 9, …, 45° from a face
+normal's azimuth (the other azimuths by the array's symmetries). Between nodes
+(:class:`~brdftab.models.pyramid_walk.WalkTable`) the tracer's branching is interpolated
+relative to the uncorrelated walk's, whose branches open at the same incidences (so a branch
+opening between two nodes is not smeared over the step); branches the geometry closes at the
+query get nothing. Past 3 bounces the tracer's escape probability after the third bounce
+holds, and later branches follow the uncorrelated rule. The single-bounce term uses the same
+table: G = min(√(g_k(ωi) g_k(ωo)), G1(ωi), G1(ωo)) on facet k's lobe, g_k(ω) = G1(ω) P_k(ω),
+P_k the tracer's probability of escaping right after a first hit on k (g_k(ωi) = g_k(ωo) on the
+true surface by reciprocity, so the term stays reciprocal and, for mirror facets, sends out what
+the tracer sees escape after one bounce).
 
 Energy. The single-bounce term is the microfacet integral of each facet's lobe; the walk goes on
 from the first hit on facet k with what that lobe does not send out (P_k minus its integral,
@@ -668,6 +693,14 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
         esc = mass * p_esc
         mass_cont = mass - esc
         if depth == 1:
+            # the continuing state: its scale is the single-bounce term's to set (_share), so a
+            # first hit the tracer sees always escape still goes on (with the hit split) with
+            # what a facet's lobe leaves below the horizon
+            full = (mass_cont <= 1e-9 * mass) & ~none
+            split_sum = p_hit.sum(axis=1)
+            p_hit = np.where((full & (split_sum <= 0))[:, None], split, p_hit)
+            p_hit = np.where(full[:, None], p_hit / np.where(full, p_hit.sum(axis=1), 1.0)[:, None], p_hit)
+            mass_cont = np.where(full, mass, mass_cont)
             first_cont[u, faces[:, 0]] = np.where(none, 0.0, mass_cont)
         keep = esc > MIN_PROBABILITY
         for key, val in (("u", u), ("dirs", d), ("prob", esc), ("faces", faces), ("cosines", cosines)):
@@ -774,25 +807,28 @@ class SingleBounce(_Term):
         self.walk = walk
         self.correlated = walk == "height-correlated"
 
-    def traced_g(self, w):
-        """g_k(w) = G1(w) · P_k(w) [..., 4], P_k the tracer's probability that a ray whose first
-        hit is facet k escapes right after it (:mod:`~brdftab.models.pyramid_walk`). For mirror
-        facets the lobe of facet k then sends out what the tracer sees escape from it, and
-        G = √(g_k(ωi) g_k(ωo)) is reciprocal (g_k(ωi) = g_k(ωo) for the true surface, by
-        reciprocity)."""
+    def traced_ratio(self, w, k=None):
+        """r_k(w) [..., 4] (or, given the facet ``k[N]`` of each of ``w[N, 3]``, [N]): the
+        tracer's probability that a ray from w whose first hit is facet k escapes right after
+        it, over the uncorrelated walk's G1(o_k) (o_k: w reflected on f_k;
+        :meth:`~brdftab.models.pyramid_walk.WalkTable.ratios`; 1 where the table has no rays)."""
         w = np.asarray(w, float)
         flat = w.reshape(-1, 3)
-        uniq, inv = np.unique(flat, axis=0, return_inverse=True)
-        r, _ = pyramid_walk.table().ratios(_facet_frame(self.dist, uniq), slice(0, 4))
-        o = -uniq[:, None, :] + 2.0 * (uniq @ self.dist.normals.T)[..., None] * self.dist.normals   # ωi reflected
-        c = np.minimum(self.dist.G1(o) * np.nan_to_num(r, nan=1.0), 1.0) * self.dist.G1(uniq)[:, None]
-        return c[inv.ravel()].reshape(w.shape[:-1] + (4,))
+        if k is None and flat.shape[0] > 1 and np.all(flat == flat[0]):          # one incidence direction
+            return np.broadcast_to(self.traced_ratio(flat[:1]), w.shape[:-1] + (4,))
+        cols = slice(0, 4) if k is None else np.asarray(k)[:, None]
+        r, _ = pyramid_walk.table().ratios(_facet_frame(self.dist, w.reshape(-1, 3)), cols, hit=False)
+        r = np.nan_to_num(r, nan=1.0)
+        return r.reshape(w.shape[:-1] + (4,)) if k is None else r[:, 0]
 
     def traced_G(self, wi, wo):
-        """The traced walk's G [..., 4]: √(g_k(ωi) g_k(ωo)), at most min(G1(ωi), G1(ωo)) (so a
-        facet's lobe never sends out more than its first hits, a_k T_k / S(ωi))."""
-        cap = np.minimum(self.dist.G1(wi), self.dist.G1(wo))[..., None]
-        return np.minimum(np.sqrt(self.traced_g(wi) * self.traced_g(wo)), cap)
+        """The traced walk's G [..., 4] on facet k's lobe: G1(ωi) G1(ωo) √(r_k(ωi) r_k(ωo)) (the
+        uncorrelated walk's G times the tracer's correction), at most min(G1(ωi), G1(ωo)) (so a
+        lobe never sends out more than its facet's first hits, a_k T_k / S(ωi)). Reciprocal, and
+        for mirror facets the lobe of facet k sends out what the tracer sees escape from it
+        (r_k(ωi) = r_k(o_k) on the true surface, by reciprocity)."""
+        g1i, g1o = self.dist.G1(wi)[..., None], self.dist.G1(wo)[..., None]
+        return np.minimum(g1i * g1o * np.sqrt(self.traced_ratio(wi) * self.traced_ratio(wo)), np.minimum(g1i, g1o))
 
     def facet_terms(self, wi, wo):
         """Grey f cosθo of each facet's lobe [..., 4] (no Fresnel), and cos_d = ⟨ωi, h⟩ [...]."""
@@ -813,17 +849,17 @@ class SingleBounce(_Term):
         f = self.fres.F(cos_d, lam, n)
         return base[:, None] * f if np.ndim(f) else np.repeat(base[:, None], n, axis=1)
 
-    def own_facet(self, wi, wo, k, lam_i):
+    def own_facet(self, wi, wo, k, lam_i, r_i=None):
         """Grey f cosθo of facet k's lobe alone (no Fresnel) at pairs ``wi[N, 3]``, ``wo[N, 3]``,
-        ``k[N]`` given Λ(ωi) [N], and cos_d [N]."""
+        ``k[N]`` given Λ(ωi) [N] (and, for the traced walk, r_k(ωi) [N]), and cos_d [N]."""
         h = wi + wo
         norm = np.sqrt(np.einsum("ij,ij->i", h, h))
         h = h / norm[:, None]
         loc = np.einsum("nij,nj->ni", self.dist.frames[k], h)
         dk = d_beckmann(loc, self.dist.alpha) * FACET_WEIGHT
         if self.walk == "traced":
-            rows = np.arange(k.size)
-            g = self.traced_G(wi, wo)[rows, k]
+            g1i, g1o = 1.0 / (1.0 + lam_i), self.dist.G1(wo)
+            g = np.minimum(g1i * g1o * np.sqrt(r_i * self.traced_ratio(wo, k)), np.minimum(g1i, g1o))
         else:
             lam_o = self.dist.lambda_(wo)
             g = 1.0 / (1.0 + lam_i + lam_o) if self.correlated else 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
@@ -838,7 +874,8 @@ class SingleBounce(_Term):
         uu, kk = np.nonzero(self.dist.facet_areas(wi) > MIN_PROBABILITY)
         owner, wo, w, _ = _facet_rule(self.dist, wi[uu], kk, _FINE if fine else _COARSE)
         lam_i = self.dist.lambda_(wi)
-        val, cos_d = self.own_facet(wi[uu[owner]], wo, kk[owner], lam_i[uu[owner]])
+        r_i = self.traced_ratio(wi[uu], kk)[owner] if self.walk == "traced" else None
+        val, cos_d = self.own_facet(wi[uu[owner]], wo, kk[owner], lam_i[uu[owner]], r_i)
         val = val * w
         if not fresnel:
             out = np.zeros((nu, 4))

@@ -169,7 +169,8 @@ class WalkTable:
             for level in range(2, self.depth + 1):
                 a, b = offset(level), offset(level + 1)
                 parent[..., a:b] = np.repeat(reach[..., offset(level - 1):a], 4, axis=-1)
-            self._ratio_parts = (self.escape, reach * u_esc, reach, parent * u_hit)
+            self._ratio_parts = (np.stack([self.escape, reach * u_esc], axis=-1),
+                                 np.stack([reach, parent * u_hit], axis=-1))
         return self._ratio_parts
 
     @staticmethod
@@ -181,36 +182,45 @@ class WalkTable:
         return j, t
 
     def _interpolate(self, w, arrays, columns):
-        """Bilinear interpolation of ``arrays`` [θ, φ, n_codes] at unit directions ``w[U, 3]``
-        (azimuths from a face normal's) for the query's codes ``columns``: [U, len(columns)]
-        each (the node's codes are the query's relabelled by the symmetry that maps w into the
-        domain)."""
+        """Bilinear interpolation of ``arrays`` [θ, φ, n_codes, ...] at unit directions
+        ``w[U, 3]`` (azimuths from a face normal's) for the query's codes ``columns``:
+        [U, len(columns), ...] each (the node's codes are the query's relabelled by the symmetry
+        that maps w into the domain)."""
         w = np.asarray(w, float).reshape(-1, 3)
         theta = np.arccos(np.clip(w[:, 2], -1.0, 1.0))
         op, phi = domain_op(np.arctan2(w[:, 1], w[:, 0]))
         i, s = self._weights(self.theta, theta)
         j, t = self._weights(self.phi, phi)
-        cols = self.esc_perm[op][:, columns]                                  # [U, C]
+        cols = self.esc_perm[op[:, None], columns]                            # [U, C]
+        nc = self.escape.shape[-1]
+        base = ((i * self.phi.size + j) * nc)[:, None] + cols                   # flat (θ node, φ node, code)
+        step = self.phi.size * nc
+        weights = ((1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t)
         out = []
         for arr in arrays:
-            v = ((1 - s) * (1 - t))[:, None] * arr[i[:, None], j[:, None], cols] \
-                + ((1 - s) * t)[:, None] * arr[i[:, None], j[:, None] + 1, cols] \
-                + (s * (1 - t))[:, None] * arr[i[:, None] + 1, j[:, None], cols] \
-                + (s * t)[:, None] * arr[i[:, None] + 1, j[:, None] + 1, cols]
+            flat = arr.reshape((-1,) + arr.shape[3:])
+            extra = (slice(None), None) + (None,) * (arr.ndim - 3)
+            v = 0.0
+            for wgt, off in zip(weights, (0, nc, step, step + nc)):
+                v = v + wgt[extra] * np.take(flat, base + off, axis=0)
             out.append(v)
         return out
 
-    def ratios(self, w, columns=slice(None)):
+    def ratios(self, w, columns=slice(None), hit=True):
         """The tracer's branching relative to the uncorrelated walk's, interpolated at unit
         directions ``w[U, 3]`` given in the frame of the facets (azimuth from a face normal's):
-        (escape [U, C], hit [U, C]) for the codes ``columns`` (default all): for a sequence s,
+        (escape [U, C], hit [U, C]) for the codes ``columns`` (default all; or [U, C] codes
+        per direction): for a sequence s,
         escape[s] multiplies the uncorrelated probability of escaping right after s, and
         hit[s] that of going on to s's last face after s without it. NaN where no node near w
-        sees a ray on the branch's parent while the branch is open (no information)."""
-        columns = np.arange(n_codes(self.depth))[columns]
-        n_esc, d_esc, n_hit, d_hit = self._interpolate(w, self._parts(), columns)
+        sees a ray on the branch's parent while the branch is open (no information). With
+        ``hit`` False, hit is None."""
+        if not isinstance(columns, np.ndarray):
+            columns = np.arange(n_codes(self.depth))[columns][None, :]
+        parts = self._interpolate(w, self._parts()[:2 if hit else 1], columns)
         with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(d_esc > 0, n_esc / d_esc, np.nan), np.where(d_hit > 0, n_hit / d_hit, np.nan)
+            r = [np.where(p[..., 1] > 0, p[..., 0] / p[..., 1], np.nan) for p in parts]
+        return r[0], (r[1] if hit else None)
 
 
 @lru_cache(maxsize=1)
