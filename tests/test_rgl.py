@@ -905,9 +905,10 @@ def test_f_is_held_near_the_horizon(files):
 
 @pytest.mark.parametrize("theta_i", [30.0, 70.0, 89.0])
 def test_albedo_of_a_file_matches_mitsubas_and_a_resolved_quadrature(files, theta_i):
-    """brdftab's albedo of a file (held f) against Mitsuba's importance-sampled albedo of the
-    same file (f·cosθo, no hold; within 1 %) and against a fine product quadrature of brdftab's
-    reader (within 0.5 %): formats/rgl-bsdf.md, Guarantees, "f near the horizon"."""
+    """brdftab's albedo of a file (f·cosθo as Mitsuba evaluates it, no hold) against Mitsuba's
+    importance-sampled albedo of the same file (within 1 %) and against a fine product quadrature
+    of brdftab's reader, which holds f beyond θ_hold (within 0.5 %): formats/rgl-bsdf.md,
+    Guarantees, "f near the horizon"."""
     from brdftab.integrate import directional_albedo as albedo
     from brdftab.quadrature import gauss_legendre
 
@@ -921,16 +922,16 @@ def test_albedo_of_a_file_matches_mitsubas_and_a_resolved_quadrature(files, thet
     got = albedo(ours, np.radians(theta_i), 0.0)
     with mi.variant_context("scalar_rgb"):
         mts = mitsuba_albedo(path, _f32(wi), n=48)
-    print(f"held albedo vs Mitsuba's, θi = {theta_i:g}°: {np.array2string(100 * (got / mts - 1), precision=2)} %")
+    print(f"albedo vs Mitsuba's, θi = {theta_i:g}°: {np.array2string(100 * (got / mts - 1), precision=2)} %")
     np.testing.assert_allclose(got, mts, rtol=0.01)
     mu, wmu = gauss_legendre(300, 0.0, 1.0)
     ph = (np.arange(600) + 0.5) * 2 * np.pi / 600
     wo = rgl.sph(np.arccos(mu)[:, None], ph[None, :]).reshape(-1, 3)
     w = (wmu[:, None] * np.full(600, 2 * np.pi / 600)).ravel() * wo[:, 2]
     fine = ours.eval(np.broadcast_to(wi, wo.shape), wo).T @ w
-    print(f"held albedo vs a fine quadrature, θi = {theta_i:g}°: "
+    print(f"albedo vs a fine quadrature of held f, θi = {theta_i:g}°: "
           f"{np.array2string(100 * (got / fine - 1), precision=2)} %")
-    np.testing.assert_allclose(got, fine, rtol=0.003)
+    np.testing.assert_allclose(got, fine, rtol=0.005)
 
 
 def test_a_measured_file_declares_nothing_it_does_not_record(files):
