@@ -183,10 +183,8 @@ def test_pyramid_shadowing_is_the_height_correlated_form():
 @pytest.mark.parametrize("case, count", zip(CASES, (20, 8, 7)))
 def test_surviving_three_bounce_sequences(case, count):
     """20 of the 64 three-face sequences survive at normal incidence (thesis Fig. 3.9), 8 at
-    45°/0° and 7 at 45°/25°; none escapes after one bounce at normal incidence (2θp > 90°).
-    The thesis' count is that of the geometric pruning, which the two walks of §3.3 keep
-    whole; the traced walk leaves out sequences the tracer does not see."""
-    for walk in ("height-correlated", "uncorrelated"):
+    45°/0° and 7 at 45°/25°; none escapes after one bounce at normal incidence (2θp > 90°)."""
+    for walk in ("traced", "height-correlated", "uncorrelated"):
         m = models.create("pyramid-microfacet", facet_roughness=DIRAC, walk=walk)
         ex = m.exit_directions(_v(*case))
         assert np.count_nonzero(ex.bounces == 3) == count
