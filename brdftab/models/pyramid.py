@@ -183,9 +183,9 @@ from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from . import pyramid_walk
+from ._registry import register
 from .combinators import Sum
 from .distributions import d_beckmann
-from ._registry import register
 from .microfacet import ComposedParams
 
 __all__ = ["THETA_P", "FACET_WEIGHT", "facet_normals", "visible_area", "PyramidDistribution", "PyramidShadowing",
@@ -666,10 +666,12 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
     """The walk over the same face sequences as :func:`_walk` with the ray tracer's branching
     probabilities (:mod:`~brdftab.models.pyramid_walk`): the first face k with probability
     a_k T_k(ωi) / Σ_j a_j T_j(ωi); after the sequence s (up to the table's depth) the ray
-    escapes or goes on to face j in proportion to the table's fractions escaping after s and
-    reaching s + j, over the branches the geometry allows (escape only upwards, face j only when
-    ⟨d, f_j⟩ < 0). Past the table's depth, or where the table has no rays on the allowed
-    branches, the uncorrelated rule decides: escape with G1(d), else face j ∝ a_j T_j(−d)."""
+    escapes or goes on to face j in proportion to the uncorrelated walk's probabilities of
+    those branches (escape with G1(d), else face j ∝ a_j T_j(−d), over the branches the
+    geometry allows: escape only upwards, face j only when ⟨d, f_j⟩ < 0) times the table's
+    interpolated ratios of the tracer's to them (:meth:`.WalkTable.ratios`; 1 where it has no
+    rays). After the table's last bounce only the escape is the tracer's; later branches follow
+    the uncorrelated rule."""
     tab = pyramid_walk.table() if tab is None else tab
     wi = np.asarray(wi, float).reshape(-1, 3)
     nu = wi.shape[0]
