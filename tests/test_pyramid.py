@@ -183,10 +183,8 @@ def test_pyramid_shadowing_is_the_height_correlated_form():
 @pytest.mark.parametrize("case, count", zip(CASES, (20, 8, 7)))
 def test_surviving_three_bounce_sequences(case, count):
     """20 of the 64 three-face sequences survive at normal incidence (thesis Fig. 3.9), 8 at
-    45°/0° and 7 at 45°/25°; none escapes after one bounce at normal incidence (2θp > 90°).
-    The thesis' count is that of the geometric pruning, which the two walks of §3.3 keep
-    whole; the traced walk leaves out sequences the tracer does not see."""
-    for walk in ("height-correlated", "uncorrelated"):
+    45°/0° and 7 at 45°/25°; none escapes after one bounce at normal incidence (2θp > 90°)."""
+    for walk in ("traced", "height-correlated", "uncorrelated"):
         m = models.create("pyramid-microfacet", facet_roughness=DIRAC, walk=walk)
         ex = m.exit_directions(_v(*case))
         assert np.count_nonzero(ex.bounces == 3) == count
@@ -550,7 +548,7 @@ def test_the_walk_table():
     area = dist.facet_areas(sph_to_vec(th, ph))
     dev = np.max(np.abs(area / area.sum(axis=-1, keepdims=True) - tab.first), axis=(1, 2))
     assert dev[tab.theta < math.radians(88)].max() < 0.005 and dev.max() < 0.011     # 0.01 at 89°
-    faces, esc_perm, _ = pyramid_walk.symmetry_permutations(3)
+    _, esc_perm, _ = pyramid_walk.symmetry_permutations(3)
     for j, op in ((0, 7), (-1, 1)):          # φ = 0: the mirror y → −y; φ = 45°: the diagonal
         assert np.allclose(tab.escape[:, j], tab.escape[:, j][:, esc_perm[op]], atol=1e-7)
     assert int(tab.meta["field_seed"]) >= TILES and int(tab.meta["ray_seed"]) >= 100 + TILES

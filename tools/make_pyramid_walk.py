@@ -21,8 +21,8 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from brdftab.models.pyramid_tracer import PyramidField, sequence_codes  # noqa: E402
-from brdftab.models.pyramid_walk import TABLE, WalkTable, n_codes, symmetry_permutations  # noqa: E402
+from brdftab.models.pyramid_tracer import PyramidField, sequence_codes
+from brdftab.models.pyramid_walk import TABLE, WalkTable, n_codes, symmetry_permutations
 
 THETA_DEG = np.concatenate([np.arange(0.0, 85.0, 3.5), [87.0, 89.0]])
 PHI_DEG = np.array([0, 9, 18, 27, 36, 45], float)
@@ -85,8 +85,8 @@ def main(argv=None):
             first[i, j], esc[i, j], ins[i, j] = symmetrize(f, e, n, ops)
             print(f"θ {th:4.1f}° φ {ph:4.1f}°  first {np.round(first[i, j], 4)}  {time.time() - start:6.0f} s",
                   flush=True)
-    meta = dict(rays_per_tile=args.rays, tiles=args.tiles, pyramids=PYRAMIDS, field_seed=FIELD_SEED,
-                ray_seed=RAY_SEED)
+    meta = {"rays_per_tile": args.rays, "tiles": args.tiles, "pyramids": PYRAMIDS, "field_seed": FIELD_SEED,
+            "ray_seed": RAY_SEED}
     WalkTable(np.radians(theta_deg), np.radians(phi_deg), DEPTH, first, esc, ins, meta).save(args.out)
     print(f"wrote {args.out} ({args.out.stat().st_size} bytes) in {time.time() - start:.0f} s")
 

@@ -102,7 +102,7 @@ class WalkTable:
         self._ratio_parts = None
 
     @classmethod
-    def load(cls, path=TABLE) -> "WalkTable":
+    def load(cls, path=TABLE) -> WalkTable:
         with np.load(path) as z:
             meta = {k[5:]: z[k][()] for k in z.files if k.startswith("meta_")}
             return cls(np.radians(z["theta_deg"]), np.radians(z["phi_deg"]), int(z["depth"]), z["first"],
