@@ -537,7 +537,8 @@ def test_help_lists_what_a_user_can_choose():
     from brdftab import formats
 
     out = CliRunner().invoke(main, ["convert", "--help"]).output
-    assert all(name in out for name in formats.FORMATS)
+    assert all(name in out for name in formats.usable())
+    assert "zemax" in formats.FORMATS and "zemax" not in out  # recognised, but neither read nor written
     top = CliRunner().invoke(main, ["--help"]).output
     for verb in ("tabulate", "convert", "eval", "info", "validate", "models", "grids", "formats"):
         assert verb in top
@@ -646,11 +647,10 @@ def test_path_that_is_not_utf8_is_one_line_or_works(tmp_path):
     table = tmp_path / "t.nc"
     assert run("tabulate", spec).returncode == 0 and (tmp_path / "out.nc").exists()
     (tmp_path / "out.nc").rename(table)
-    for ext in ("nc", "exr"):
-        proc = run("convert", table, tmp_path / os.fsdecode(b"t\xff." + ext.encode()))
-        one_error(proc.stderr, proc.returncode, f"t\\xff.{ext}", "valid UTF-8")
-        proc = run("info", tmp_path / os.fsdecode(b"t\xff." + ext.encode()))
-        assert proc.returncode == 2
+    for ext in ("nc", "exr"):  # in-process: the same surrogate-escaped names
+        result = _cli("convert", table, tmp_path / os.fsdecode(b"t\xff." + ext.encode()))
+        one_error(result.stderr, result.exit_code, f"t\\xff.{ext}", "valid UTF-8")
+        assert _cli("info", tmp_path / os.fsdecode(b"t\xff." + ext.encode())).exit_code == 2
     assert names(tmp_path) == sorted([spec.name, table.name])
     merl = tmp_path / os.fsdecode(b"t\xff.binary")
     brdftab.save(models.create("lambert", albedo=0.5), merl)

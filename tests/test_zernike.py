@@ -496,3 +496,34 @@ def test_no_output_may_overwrite_the_coefficient_file(tmp_path):
     result = CliRunner().invoke(main, ["tabulate", str(spec), "--overwrite"])
     assert result.exit_code == 2 and "input file of the model" in result.stderr, result.stderr
     assert coeff.read_bytes() == SYNTHETIC.read_bytes()
+
+
+def test_evaluation_memory_does_not_grow_with_the_orders(tmp_path, monkeypatch):
+    """Every radial polynomial and cos(lΔφ) is held per direction pair: pairs are taken in
+    chunks of EXPANSION_BYTES, so a file of high orders does not need (orders × pairs) memory
+    (a 2-line file of order 20000 took more than 8 GB). Peak measured with tracemalloc."""
+    import tracemalloc
+
+    from brdftab.models import zernike
+
+    rows = ["1, 1, 0, 0, 0, 0, 0, 0.3"] + [f"1, 1, {n}, {n}, 0, {n}, 0, 1e-4" for n in range(2, 101, 2)]
+    path = _write(tmp_path, "\n".join(rows) + "\n")
+    monkeypatch.setattr(zernike, "EXPANSION_BYTES", 4 << 20)
+    tracemalloc.start()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BrdftabWarning)
+            m = _model(path)  # scans 99,225 direction pairs for negative values
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    # without chunks: (2 x 51 radial tables + 101 cosines) x 99,225 pairs x 8 bytes = 161 MB
+    assert peak < 40 << 20, peak / 2**20
+    assert m.coefficients.n_f11 == 51
+    # evaluated in chunks (64 kB: a few hundred pairs each), the sum still follows SCATMECH's
+    monkeypatch.setattr(zernike, "EXPANSION_BYTES", 64 << 10)
+    rows = "1, 1, 0, 0, 0, 0, 0, 2.0\n1, 1, 1, 1, 0, 1, 0, -0.3\n1, 1, 4, 2, 7, 2, -1, 0.02\n1, 1, 6, 6, 0, 4, 0, 0.01\n"
+    small = _write(tmp_path, rows, "small.csv")
+    wi, wo = _random_pairs(4000, seed=5)
+    ref = _scatmech_f11(_read_rows(small), *_scatmech_angles(wi, wo), 0.532)
+    np.testing.assert_allclose(_model(small).expansion(wi, wo)[:, 0], ref, rtol=1e-12, atol=1e-13)
