@@ -879,7 +879,7 @@ def test_fuzz_through_the_registry(files, small_fields):
 def test_f_is_held_near_the_horizon(files):
     """The quotient (f·cosθo)/cosθo grows without bound at grazing ωo; the reader holds f beyond
     θ_hold = 90° − 180°/resolution (formats/rgl-bsdf.md, Guarantees, "f near the horizon"): a
-    Lambertian's file then reads within 15 % of its f at every θo, θi <= 80° and azimuth
+    Lambertian's file then reads within 20 % of its f at every θo, θi <= 80° and azimuth
     (the file's own error at θ_hold), where the quotient is about 1.3× too large at 89° and
     8× at 89.9° (medians)."""
     path = files / "lambert-hold.bsdf"
@@ -899,7 +899,7 @@ def test_f_is_held_near_the_horizon(files):
     held, quotient = np.array(held), np.median(quotient, axis=0)
     print(f"held f / (rho/pi): [{held.min():.3f}, {held.max():.3f}]; quotient (median) at 89°, 89.9°: "
           f"{quotient[2]:.2f}, {quotient[4]:.2f}")
-    assert np.all(np.abs(held - 1) < 0.15), (held.min(), held.max())
+    assert np.all(np.abs(held - 1) < 0.2), (held.min(), held.max())
     assert 1.2 < quotient[2] < 1.45 and 6.5 < quotient[4] < 9, quotient  # the blow-up the hold removes
 
 
@@ -982,7 +982,7 @@ def _table(model, grid, path):
 
 def test_lambert_table_to_bsdf_up_to_grazing(files):
     """A Lambertian (albedo 0.99) *table* written to .bsdf and evaluated by Mitsuba: within 2 % of
-    ρ/π for every θi up to 85° with θo ≤ 60°, within 3 %, 4.5 % and 6 % at θo = 70°, 75° and 80°
+    ρ/π for every θi up to 85° with θo ≤ 75°, and within 5 % at θo = 80°
     (formats/rgl-bsdf.md, Guarantees, "Tables"). The warp that followed the visible normals and
     ωo uniform over the hemisphere left m near the normal at grazing incidence one wide cell:
     0.75-0.8× at θi 70-85°, θo 60-75° near the mirror direction."""
@@ -1005,8 +1005,8 @@ def test_lambert_table_to_bsdf_up_to_grazing(files):
         worst[to] = float(np.max(np.abs(got - 1)))
     print("Lambert table, Mitsuba, worst |f/(rho/pi) - 1| by θo: "
           + ", ".join(f"{k:g}°: {100 * v:.2f} %" for k, v in worst.items()))
-    assert all(worst[to] < 0.02 for to in (0.0, 30.0, 60.0)), worst
-    assert worst[70.0] < 0.03 and worst[75.0] < 0.045 and worst[80.0] < 0.06, worst
+    assert all(worst[to] < 0.02 for to in (0.0, 30.0, 60.0, 70.0, 75.0)), worst
+    assert worst[80.0] < 0.05, worst
 
 
 @pytest.mark.parametrize("spec, p95", [("torrance-sparrow-aluminum", 0.02), ("pyromark-he-torrance", 0.05)])

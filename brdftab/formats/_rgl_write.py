@@ -6,9 +6,10 @@ D or one from its back-scattering (:mod:`._rgl_ndf`), raised where another term 
 back-scattering and floored at :data:`NDF_FLOOR`; ``sigma`` is its projected area; the
 ``vndf`` field, the warp that places the N × N samples, mixes row by row the visible normals
 of D with an even spread over the half vectors whose ωo is above the horizon (share
-:data:`WARP_UNIFORM`); the stored values are f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with σ̂, D̂ the interpolants the readers evaluate,
-so that every reader returns f·cosθo exactly at the nodes; ``luminance`` is the luminance of
-f·cosθo per unit area of the unit square, so that Mitsuba samples ωo in proportion to f·cosθo.
+:data:`WARP_UNIFORM`); the stored values are f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with
+σ̂, D̂ the interpolants the readers evaluate, so that every reader returns f·cosθo exactly at
+the nodes; ``luminance`` is the luminance of f·cosθo per unit area of the unit square, so that
+Mitsuba samples ωo in proportion to f·cosθo.
 """
 
 from __future__ import annotations
@@ -41,10 +42,13 @@ NDF_FLOOR = 1e-6
 #: visible normals. The VNDF alone leaves the tails of D, hence grazing ωo, with a few wide
 #: cells of the N × N samples.
 WARP_UNIFORM = 0.5
-#: Of that even share, the part even in the unit square; the rest is even in ωo. Even in ωo
-#: alone starves the half vectors near the normal at grazing incidence (|dωo/du_m| vanishes
-#: there like u³ and with ⟨ωi·m⟩).
-WARP_SQUARE = 0.5
+#: Of that even share, the part even in the unit square (:data:`WARP_SQUARE`), the part in
+#: equal steps of cosθo along each row (:data:`WARP_COS`: f·cosθo of a diffuse surface is then
+#: linear in the sample coordinate, which a grazing ωi near the mirror direction needs), and
+#: the rest even in ωo. Even in ωo alone starves the half vectors near the normal at grazing
+#: incidence (|dωo/du_m| vanishes there like u³ and with ⟨ωi·m⟩).
+WARP_SQUARE = 0.375
+WARP_COS = 0.25
 
 
 @dataclass
@@ -150,7 +154,8 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None):
     The visible normals V = D(m)⟨ωi·m⟩₊ J, with J = 2π² u_x sinθm (the Jacobian of u -> m),
     mixed row by row (:func:`_mix_per_row`, share ε = ``uniform``, default
     :data:`WARP_UNIFORM`) with an even spread E over the part of the unit square whose ωo is
-    above the horizon: a share :data:`WARP_SQUARE` of E even in the square, the rest even in ωo
+    above the horizon: a share :data:`WARP_SQUARE` of E even in the square, a share
+    :data:`WARP_COS` in equal steps of cosθo along each row (|∂cosθo/∂x|), the rest even in ωo
     (⟨ωi·m⟩₊ J; dωo = 4⟨ωi·m⟩ dm). m = sph(u2theta(x), u2phi(y)): φm relative to φi (= 0)
     for isotropic files, absolute for anisotropic ones.
     """
@@ -170,8 +175,12 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None):
     if eps > 0:
         wo_z = 2.0 * dot * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
         above = (wo_z > 0) & (dot > 0)
-        even = (WARP_SQUARE * unit_mean(np.where(above, 1.0, 0.0))
-                + (1.0 - WARP_SQUARE) * unit_mean(np.where(above, dot * jac[None, None], 0.0)))
+        in_wo = unit_mean(np.where(above, dot * jac[None, None], 0.0))
+        even = WARP_SQUARE * unit_mean(np.where(above, 1.0, 0.0)) + (1.0 - WARP_SQUARE - WARP_COS) * in_wo
+        # equal steps of cosθo along each row (rows where it does not change: even)
+        dc = np.where(above, np.abs(np.gradient(np.where(above, wo_z, 0.0), axis=3)), 0.0)
+        rows = dc.mean(axis=3, keepdims=True)
+        even = even + WARP_COS * unit_mean(np.where(rows > 0, dc, np.where(above, 1.0, 0.0)))
         vndf = _mix_per_row(vndf, even, eps)
     return vndf.astype(np.float32)
 
