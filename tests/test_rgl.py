@@ -1061,6 +1061,12 @@ def test_single_incidence_table_is_refused(files):
     result = run("convert", files / "three-incidences.nc", target)
     one_error(result.stderr, result.returncode, "20 to 60 deg", "theta_i_deg")
     assert not target.exists()
+    # an RGL file measured up to 80° evaluates at every incidence (clamped, as in Mitsuba):
+    # written again with options, it is resampled, not refused
+    from _measured import measured_bsdf
+
+    measured_bsdf(files / "to-80.bsdf")
+    rgl.prepare_rgl(brdftab.open(files / "to-80.bsdf"), resolution=16)
 
 
 def test_a_model_without_back_scattering_gets_a_flat_ndf(files):

@@ -231,9 +231,15 @@ def _edge_weight(weight):
 
 def _check_coverage(brdf, theta_i):
     """Refuse a table whose grid does not hold the incidences the file stores (a table on a
-    spherical grid with one incidence, or with a θi range short of the file's)."""
+    spherical grid with one incidence, or with a θi range short of the file's: it has no
+    values there). A file in a format's own layout (an RGL file read back) evaluates at every
+    incidence and is not judged here."""
+    from ..grids import Grid
+
     grid = getattr(brdf, "grid", None)
-    axis = next((a for a in getattr(grid, "axes", ()) if getattr(a, "name", "") == "theta_i"), None)
+    if not isinstance(grid, Grid):
+        return
+    axis = next((a for a in grid.axes if getattr(a, "name", "") == "theta_i"), None)
     if axis is None:
         return
     values = np.degrees(np.asarray(axis.values, float))
