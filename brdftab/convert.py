@@ -22,9 +22,11 @@ format). The steps:
    on the target grid, and the conversion reports how far the written table is from the
    input at a few thousand random direction pairs in the written table's domain
    (:class:`Difference`);
-6. **what is written is validated** before it is written: an output that fails a check is
-   refused (exit code 1, nothing written) unless ``allow_invalid``, which writes it with
-   ``validation_passed = 0``;
+6. **what is written is validated** before it is written: an output that fails a check, or
+   a resampled output whose relative error of f at θi, θo ≤ 80° exceeds
+   :data:`RESAMPLING_BOUND` in its median or its 95th percentile, is refused (exit code 1,
+   the figures named, nothing written) unless ``allow_invalid``, which writes it (with
+   ``validation_passed = 0`` when a check failed);
 7. the output is written atomically (:func:`brdftab.formats.write_prepared`).
 """
 

@@ -478,7 +478,7 @@ def test_sum_uses_the_narrowest_microfacet_lobe():
 def test_backscatter_bound_for_a_lambertian_under_a_narrow_lobe(monkeypatch):
     """formats/rgl-bsdf.md, writer step 1: a sum's ndf table is the narrowest lobe's D, raised
     where the back-scattering needs more. For a Lambertian under a Beckmann α = 0.1 lobe the
-    file's albedo (as Mitsuba evaluates it) is then within 1.5 % of the model's at θi <= 70°;
+    file's albedo (as Mitsuba evaluates it) is then within 0.5 % of the model's at θi <= 70°;
     without the bound the tails of D make it more than 10 % off."""
     from brdftab.formats import _rgl_ndf
 
@@ -497,7 +497,7 @@ def test_backscatter_bound_for_a_lambertian_under_a_narrow_lobe(monkeypatch):
     unbounded = albedo_error()
     print(f"Lambert + Beckmann 0.1, albedo error with the bound {np.array2string(100 * bounded, precision=2)} %, "
           f"without {np.array2string(100 * unbounded, precision=3)} %")
-    assert np.all(np.abs(bounded) < 0.015), bounded
+    assert np.all(np.abs(bounded) < 0.005), bounded
     assert np.max(np.abs(unbounded)) > 0.1, unbounded
 
 
@@ -879,7 +879,7 @@ def test_fuzz_through_the_registry(files, small_fields):
 def test_f_is_held_near_the_horizon(files):
     """The quotient (f·cosθo)/cosθo grows without bound at grazing ωo; the reader holds f beyond
     θ_hold = 90° − 180°/resolution (formats/rgl-bsdf.md, Guarantees, "f near the horizon"): a
-    Lambertian's file then reads within 15 % of its f at every θo, θi <= 80° and azimuth
+    Lambertian's file then reads within 20 % of its f at every θo, θi <= 80° and azimuth
     (the file's own error at θ_hold), where the quotient is about 1.3× too large at 89° and
     8× at 89.9° (medians)."""
     path = files / "lambert-hold.bsdf"
@@ -899,7 +899,7 @@ def test_f_is_held_near_the_horizon(files):
     held, quotient = np.array(held), np.median(quotient, axis=0)
     print(f"held f / (rho/pi): [{held.min():.3f}, {held.max():.3f}]; quotient (median) at 89°, 89.9°: "
           f"{quotient[2]:.2f}, {quotient[4]:.2f}")
-    assert np.all(np.abs(held - 1) < 0.15), (held.min(), held.max())
+    assert np.all(np.abs(held - 1) < 0.2), (held.min(), held.max())
     assert 1.2 < quotient[2] < 1.45 and 6.5 < quotient[4] < 9, quotient  # the blow-up the hold removes
 
 
@@ -983,7 +983,7 @@ def _table(model, grid, path):
 
 def test_lambert_table_to_bsdf_up_to_grazing(files):
     """A Lambertian (albedo 0.99) *table* written to .bsdf and evaluated by Mitsuba: within 2 % of
-    ρ/π for every θi up to 85° with θo ≤ 60°, within 3 %, 4.5 % and 6 % at θo = 70°, 75° and 80°
+    ρ/π for every θi up to 85° with θo ≤ 75°, and within 5 % at θo = 80°
     (formats/rgl-bsdf.md, Guarantees, "Tables"). The warp that followed the visible normals and
     ωo uniform over the hemisphere left m near the normal at grazing incidence one wide cell:
     0.75-0.8× at θi 70-85°, θo 60-75° near the mirror direction."""
@@ -1006,8 +1006,8 @@ def test_lambert_table_to_bsdf_up_to_grazing(files):
         worst[to] = float(np.max(np.abs(got - 1)))
     print("Lambert table, Mitsuba, worst |f/(rho/pi) - 1| by θo: "
           + ", ".join(f"{k:g}°: {100 * v:.2f} %" for k, v in worst.items()))
-    assert all(worst[to] < 0.02 for to in (0.0, 30.0, 60.0)), worst
-    assert worst[70.0] < 0.03 and worst[75.0] < 0.045 and worst[80.0] < 0.06, worst
+    assert all(worst[to] < 0.02 for to in (0.0, 30.0, 60.0, 70.0, 75.0)), worst
+    assert worst[80.0] < 0.05, worst
 
 
 @pytest.mark.parametrize("spec, p95", [("torrance-sparrow-aluminum", 0.02), ("pyromark-he-torrance", 0.05)])
@@ -1062,6 +1062,12 @@ def test_single_incidence_table_is_refused(files):
     result = run("convert", files / "three-incidences.nc", target)
     one_error(result.stderr, result.returncode, "20 to 60 deg", "theta_i_deg")
     assert not target.exists()
+    # an RGL file measured up to 80° evaluates at every incidence (clamped, as in Mitsuba):
+    # written again with options, it is resampled, not refused
+    from _measured import measured_bsdf
+
+    measured_bsdf(files / "to-80.bsdf")
+    rgl.prepare_rgl(brdftab.open(files / "to-80.bsdf"), resolution=16)
 
 
 def test_a_model_without_back_scattering_gets_a_flat_ndf(files):
@@ -1107,3 +1113,19 @@ def test_measured_file_round_trip_through_netcdf(files):
     print(f"sizes: source {source_size} B, written {size} B")
     assert_percentiles("measured-like .bsdf -> .nc -> .bsdf, Mitsuba vs the netCDF table", rel, {50: 0.01, 95: 0.10})
     assert size <= 2 * source_size
+
+
+@pytest.mark.parametrize("spec", sorted(p.stem for p in (__import__("pathlib").Path(__file__).parent.parent
+                                                         / "specs").glob("*.toml")))
+def test_every_shipped_spec_model_writes_a_bsdf(spec):
+    """Every shipped spec's model can be written to .bsdf (small resolutions keep this fast): the
+    fields are valid for brdftab's reader (Mitsuba's checks) and every stored value is finite."""
+    from pathlib import Path
+
+    from brdftab.spec import load_spec
+
+    model = load_spec(Path(__file__).parent.parent / "specs" / f"{spec}.toml").model
+    payload = rgl.prepare_rgl(model, n_theta_i=3, n_phi_i=3, resolution=6, vndf_resolution=8, ndf_resolution=8,
+                              ndf_phi_resolution=4)
+    bsdf = rgl.RGLBSDF(payload.fields, f"{spec}.bsdf")
+    assert np.all(np.isfinite(bsdf.values))

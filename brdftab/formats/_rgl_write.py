@@ -4,11 +4,12 @@ plugin (:func:`prepare_rgl`, :func:`write_rgl`).
 Steps (formats/rgl-bsdf.md, "How brdftab writes a file"): the ``ndf`` table is the model's own
 D or one from its back-scattering (:mod:`._rgl_ndf`), raised where another term dominates the
 back-scattering and floored at :data:`NDF_FLOOR`; ``sigma`` is its projected area; the
-``vndf`` field, the warp that places the N × N samples, mixes the visible normals of D with an
-even spread over the half vectors whose ωo is above the horizon (share :data:`WARP_UNIFORM`); the stored values are
-f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with σ̂, D̂ the interpolants the readers evaluate,
-so that every reader returns f·cosθo exactly at the nodes; ``luminance`` is the luminance of
-f·cosθo per unit area of the unit square, so that Mitsuba samples ωo in proportion to f·cosθo.
+``vndf`` field, the warp that places the N × N samples, mixes row by row the visible normals
+of D with an even spread over the half vectors whose ωo is above the horizon (share
+:data:`WARP_UNIFORM`); the stored values are f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with
+σ̂, D̂ the interpolants the readers evaluate, so that every reader returns f·cosθo exactly at
+the nodes; ``luminance`` is the luminance of f·cosθo per unit area of the unit square, so that
+Mitsuba samples ωo in proportion to f·cosθo.
 """
 
 from __future__ import annotations
@@ -36,14 +37,18 @@ __all__ = ["NDF_FLOOR", "WARP_UNIFORM", "RGLPayload", "prepare_rgl", "write_rgl"
 #: D is floored at this fraction of its maximum: f·cosθo > 0 needs D > 0 (the stored values
 #: are f·cosθo·4σ/D), and Beckmann-type D underflow to 0 far from the normal.
 NDF_FLOOR = 1e-6
-#: Share ε of the warp (the ``vndf`` field) spread evenly over the unit square of half vectors
-#: where ωo is above the horizon; the rest follows the visible normals. The VNDF alone leaves
-#: the tails of D, hence grazing ωo, with a few wide cells of the N × N samples; an even share
-#: in ωo (rather than in the square) starves the half vectors near the normal at grazing
-#: incidence (|dωo/du_m| vanishes there like u³ and with ⟨ωi·m⟩).
+#: Share ε of the warp (the ``vndf`` field), in every row and in the marginal over the rows,
+#: spread evenly over the half vectors whose ωo is above the horizon; the rest follows the
+#: visible normals. The VNDF alone leaves the tails of D, hence grazing ωo, with a few wide
+#: cells of the N × N samples.
 WARP_UNIFORM = 0.5
-WARP_SQUARE = 0.5
-WARP_PER_ROW = True
+#: Of that even share, the part even in the unit square (:data:`WARP_SQUARE`), the part in
+#: equal steps of cosθo along each row (:data:`WARP_COS`: f·cosθo of a diffuse surface is then
+#: linear in the sample coordinate, which a grazing ωi near the mirror direction needs), and
+#: the rest even in ωo. Even in ωo alone starves the half vectors near the normal at grazing
+#: incidence (|dωo/du_m| vanishes there like u³ and with ⟨ωi·m⟩).
+WARP_SQUARE = 0.375
+WARP_COS = 0.25
 
 
 @dataclass
@@ -146,11 +151,13 @@ def _ndf_tables(ndf, warp_ndf, nx, ny, anisotropic, name):
 def _vndf_table(d, th_i, ph_i, nv, uniform=None):
     """The ``vndf`` field ``[Nφi, Nθi, nv, nv]``, float32: the density over u_m of the warp.
 
-    (1 − ε)·[D(m)⟨ωi·m⟩₊ J] + ε·[1 where ωo is above the horizon], each normalized to mean 1
-    over the table, with J = 2π² u_x sinθm (the Jacobian of u -> m) and ε = ``uniform``
-    (default :data:`WARP_UNIFORM`): the visible normals of D mixed with an even spread over
-    the part of the unit square whose ωo is above the horizon. m = sph(u2theta(x),
-    u2phi(y)): φm relative to φi (= 0) for isotropic files, absolute for anisotropic ones.
+    The visible normals V = D(m)⟨ωi·m⟩₊ J, with J = 2π² u_x sinθm (the Jacobian of u -> m),
+    mixed row by row (:func:`_mix_per_row`, share ε = ``uniform``, default
+    :data:`WARP_UNIFORM`) with an even spread E over the part of the unit square whose ωo is
+    above the horizon: a share :data:`WARP_SQUARE` of E even in the square, a share
+    :data:`WARP_COS` in equal steps of cosθo along each row (|∂cosθo/∂x|), the rest even in ωo
+    (⟨ωi·m⟩₊ J; dωo = 4⟨ωi·m⟩ dm). m = sph(u2theta(x), u2phi(y)): φm relative to φi (= 0)
+    for isotropic files, absolute for anisotropic ones.
     """
     eps = WARP_UNIFORM if uniform is None else uniform
     g = np.linspace(0.0, 1.0, nv)
@@ -168,12 +175,13 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None):
     if eps > 0:
         wo_z = 2.0 * dot * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
         above = (wo_z > 0) & (dot > 0)
-        even = (WARP_SQUARE * unit_mean(np.where(above, 1.0, 0.0))
-                + (1.0 - WARP_SQUARE) * unit_mean(np.where(above, dot * jac[None, None], 0.0)))
-        if WARP_PER_ROW:
-            vndf = _mix_per_row(vndf, even, eps)
-        else:
-            vndf = (1.0 - eps) * vndf + eps * even
+        in_wo = unit_mean(np.where(above, dot * jac[None, None], 0.0))
+        even = WARP_SQUARE * unit_mean(np.where(above, 1.0, 0.0)) + (1.0 - WARP_SQUARE - WARP_COS) * in_wo
+        # equal steps of cosθo along each row (rows where it does not change: even)
+        dc = np.where(above, np.abs(np.gradient(np.where(above, wo_z, 0.0), axis=3)), 0.0)
+        rows = dc.mean(axis=3, keepdims=True)
+        even = even + WARP_COS * unit_mean(np.where(rows > 0, dc, np.where(above, 1.0, 0.0)))
+        vndf = _mix_per_row(vndf, even, eps)
     return vndf.astype(np.float32)
 
 
@@ -223,9 +231,15 @@ def _edge_weight(weight):
 
 def _check_coverage(brdf, theta_i):
     """Refuse a table whose grid does not hold the incidences the file stores (a table on a
-    spherical grid with one incidence, or with a θi range short of the file's)."""
+    spherical grid with one incidence, or with a θi range short of the file's: it has no
+    values there). A file in a format's own layout (an RGL file read back) evaluates at every
+    incidence and is not judged here."""
+    from ..grids import Grid
+
     grid = getattr(brdf, "grid", None)
-    axis = next((a for a in getattr(grid, "axes", ()) if getattr(a, "name", "") == "theta_i"), None)
+    if not isinstance(grid, Grid):
+        return
+    axis = next((a for a in grid.axes if getattr(a, "name", "") == "theta_i"), None)
     if axis is None:
         return
     values = np.degrees(np.asarray(axis.values, float))
