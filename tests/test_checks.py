@@ -774,7 +774,7 @@ def test_measured_rgl_file_brighter_than_1_converts_with_a_warning(tmp_path):
     assert e["status"] == "warn" and e["figure"] > 1.01 and attrs["validation_passed"] == 1
 
 
-def _mitsuba_albedo(path, theta_i, n=64):
+def _mitsuba_albedo(path, theta_i, n=256):
     """∫ f cosθo dωo of an RGL file by Mitsuba 3's own ``measured`` plugin: its importance
     sampling (n × n stratified samples; the sample weight is f cosθo / pdf)."""
     import contextlib
@@ -799,8 +799,8 @@ def _mitsuba_albedo(path, theta_i, n=64):
 @pytest.mark.parametrize("which", ["glossy", "measured-like"])
 def test_albedo_of_an_rgl_file_is_mitsubas_own(tmp_path, which):
     """The albedo check's a(θi) of an RGL .bsdf (and so the energy figure) is the file's albedo
-    as Mitsuba reads it: within 0.5 % of Mitsuba's importance-sampled albedo at θi ≤ 85°
-    (measured ≤ 0.19 %; the sampling itself is good to about 0.1 %). formats/rgl-bsdf.md,
+    as Mitsuba reads it: within 0.3 % of Mitsuba's importance-sampled albedo at θi ≤ 85°
+    (measured ≤ 0.20 %; the sampling itself, 256 × 256 stratified samples, is good to about 0.1 %). formats/rgl-bsdf.md,
     Guarantees, "Albedo of a file"."""
     path = tmp_path / f"{which}.bsdf"
     if which == "glossy":
@@ -817,7 +817,7 @@ def test_albedo_of_an_rgl_file_is_mitsubas_own(tmp_path, which):
         theirs = _mitsuba_albedo(path, R(theta))
         worst = max(worst, float(np.max(np.abs(ours / theirs - 1))))
     print(f"{which}: brdftab's albedo vs Mitsuba's, θi ≤ 85°: max {100 * worst:.2f} %")
-    assert worst < 0.005
+    assert worst < 0.003
 
 
 # -- report wording: figures defined, nothing passed that was not measured, stored = later --------

@@ -561,3 +561,22 @@ def test_a_grid_the_format_does_not_store_is_said_to_be_ignored(tmp_path):
         warnings.simplefilter("error")  # the MERL grid itself, or no grid: nothing to say
         brdftab.save(lam, tmp_path / "y.binary", grid="merl")
         brdftab.save(lam, tmp_path / "z.binary")
+
+
+def test_negative_values_of_an_analytic_model_are_not_clamped_but_refused(tmp_path):
+    """Clamping is for measurement noise: a table of an analytic model with negative values is
+    left as it is, so the non-negative check refuses it before export."""
+    from brdftab.checks import ChecksFailed, guard
+    from brdftab.formats.merl import prepare_merl
+
+    table, mask, _ = _noisy_merl_table(count=20)
+    table.ds.attrs["origin"] = "analytic"
+    table = Table(table.ds)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        prepared = prepare_merl(table, merl_grid())
+    assert int((np.asarray(prepared.values) < 0).sum()) == int(mask.sum())
+    with pytest.raises(ChecksFailed, match="non-negative"):
+        guard(prepared, only=("non-negative",))

@@ -267,10 +267,11 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
     are marked −1 too.
 
     MERL reads every negative value as a "no measurement" marker, so negative samples that are
-    data (measurement noise below 0, not declared missing) would come back as missing bins:
-    with ``negative = "zero"`` (the default) they are written as 0, and one warning line gives
-    their count and the lowest value; ``negative = "missing"`` writes them as they are (read
-    back as missing). Samples the source declares missing stay markers.
+    data (measurement noise below 0 in measured or unknown-origin data, not declared missing)
+    would come back as missing bins: with ``negative = "zero"`` (the default) they are written
+    as 0, and one warning line gives their count and the lowest value; ``negative = "missing"``
+    writes them as they are (read back as missing). Samples the source declares missing stay
+    markers; negative values of an analytic model are left for the non-negative check.
     """
     from ..table import Table, tabulate
 
@@ -299,6 +300,8 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
     if symmetrize:
         source = Average(term=source, swap=True)
         provenance["symmetrized"] = 1
+    if source is not brdf:  # an average of measured data is measured data
+        source.origin = getattr(brdf, "origin", "analytic")
     table = _clamp_negatives(_as_rgb(tabulate(source, target, provenance=provenance or None)), negative)
     missing = None
     if isinstance(brdf, Table):
@@ -319,10 +322,12 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
 
 def _clamp_negatives(table, negative: str):
     """``table`` with its negative data samples (not declared missing) set to 0, said in one
-    warning line, unless ``negative = "missing"``; the table itself when it has none."""
+    warning line, unless ``negative = "missing"``; the table itself when it has none. Only
+    measured data (or data of unknown origin) is clamped: a negative value of an analytic model
+    is an error the non-negative check must see, not noise."""
     from ..table import Table
 
-    if negative == "missing":
+    if negative == "missing" or getattr(table, "origin", "unknown") == "analytic":
         return table
     values = np.asarray(table.values)
     with np.errstate(invalid="ignore"):
