@@ -90,8 +90,10 @@ def _floating_point(text: str, filename: str, lineno: int) -> str:
     parts = path.parts
     where = "/".join(parts[parts.index("brdftab"):]) if "brdftab" in parts else path.name
     noun = {"invalid value": "invalid operation", "divide by zero": "division by zero"}.get(kind, kind)
-    return (f"numerical {noun} ({op}) in {where}, line {lineno}: {_FP_MEANING[kind]}; figures computed from it may "
-            "be inf or NaN")
+    meaning = _FP_MEANING[kind]
+    if kind == "overflow" and op == "cast":  # a conversion to a narrower type, e.g. float32 storage
+        meaning = "a value exceeded the range of the type it was converted to (float32: about 3.4e38) and became infinite"
+    return f"numerical {noun} ({op}) in {where}, line {lineno}: {meaning}; figures computed from it may be inf or NaN"
 
 
 class _Group(click.Group):

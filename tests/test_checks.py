@@ -869,3 +869,20 @@ def test_stored_report_of_a_conversion_is_what_a_later_validate_finds(tmp_path, 
     later = json.loads(v.stdout)["reports"][0]
     assert later["counts"] == stored["counts"]
     assert [(c["name"], c["status"]) for c in later["checks"]] == [(c["name"], c["status"]) for c in stored["checks"]]
+
+
+def test_tabulation_figures_do_not_overflow_for_huge_values():
+    """The rms is a ratio of sums of squares: values near 1e200 (finite, but their squares are
+    not) give the same figures as the same shape at 1 (they overflowed to NaN)."""
+    from brdftab.checks.tabulation import compare
+
+    rng = np.random.default_rng(4)
+    model = rng.uniform(0.5, 2.0, (500, 3))
+    table = model * (1.0 + rng.normal(0.0, 0.01, model.shape))
+    expected = (float(np.sqrt(((table - model) ** 2).sum() / (model ** 2).sum())),
+                float(np.max(np.abs(table - model) / model)))
+    with np.errstate(all="raise"):
+        for factor in (1.0, 1e200, 1e-200):
+            rms, mx, _, n = compare(table * factor, model * factor)
+            assert n == 500
+            np.testing.assert_allclose((rms, mx), expected, rtol=1e-12)

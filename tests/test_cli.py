@@ -668,11 +668,16 @@ def test_numpy_floating_point_warnings_are_one_line_naming_where(capsys, tmp_pat
                                  "/somewhere/site-packages/brdftab/checks/tabulation.py", 71)
     cli_module._show_warning(RuntimeWarning("invalid value encountered in scalar divide"), RuntimeWarning,
                              "/somewhere/brdftab/integrate.py", 9)
+    cli_module._show_warning(RuntimeWarning("overflow encountered in cast"), RuntimeWarning,
+                             "/somewhere/brdftab/formats/__init__.py", 40)
     assert capsys.readouterr().err.splitlines() == [
         "brdftab: warning: numerical overflow (square) in brdftab/checks/tabulation.py, line 71: a value exceeded "
         "the float64 range (about 1.8e308) and became infinite; figures computed from it may be inf or NaN",
         "brdftab: warning: numerical invalid operation (scalar divide) in brdftab/integrate.py, line 9: an undefined "
-        "operation (0/0, inf - inf, inf/inf, sqrt of a negative) gave NaN; figures computed from it may be inf or NaN"]
+        "operation (0/0, inf - inf, inf/inf, sqrt of a negative) gave NaN; figures computed from it may be inf or NaN",
+        "brdftab: warning: numerical overflow (cast) in brdftab/formats/__init__.py, line 40: a value exceeded the "
+        "range of the type it was converted to (float32: about 3.4e38) and became infinite; figures computed from it "
+        "may be inf or NaN"]
     # end to end: a model of values near the float64 limit; no bare NumPy message reaches the user
     spec = tmp_path / "huge.toml"
     spec.write_text('[model]\nname = "scale"\nfactor = 1e300\n[model.term]\nname = "lambert"\nalbedo = 0.5\n'

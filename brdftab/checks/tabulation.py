@@ -72,9 +72,12 @@ def compare(table_values, model_values, weight=None):
     ok = np.isfinite(t) & np.isfinite(m)
     d = np.where(ok, t - m, 0.0) * w[:, None]
     mm = np.where(ok, m, 0.0) * w[:, None]
-    den = float((mm ** 2).sum())
-    rms = float(np.sqrt((d ** 2).sum() / den)) if den > 0 else (0.0 if not d.any() else float("inf"))
     top = float(np.abs(mm).max()) if mm.size else 0.0
+    # squared after scaling by the largest magnitude: values near 1e200 do not overflow the sums
+    scale = max(top, float(np.abs(d).max()) if d.size else 0.0)
+    scale = scale if np.isfinite(scale) and scale > 0 else 1.0
+    den = float(((mm / scale) ** 2).sum())
+    rms = float(np.sqrt(((d / scale) ** 2).sum() / den)) if den > 0 else (0.0 if not d.any() else float("inf"))
     sig = ok & (np.abs(mm) > 1e-3 * top) & (top > 0)
     rel = np.divide(np.abs(d), np.abs(mm), out=np.zeros(d.shape), where=sig)
     worst = int(np.unravel_index(np.argmax(rel), rel.shape)[0]) if sig.any() else None
