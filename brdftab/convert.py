@@ -543,8 +543,11 @@ def _run_checks(brdf, checks, origin=None, reference=None):
 
 
 def _tabulate(brdf, grid, wavelengths, table, source: Path, progress):
-    from .table import tabulate
+    from .table import check_checked_memory, tabulate
 
+    # the resampled table and the checks of it must fit, as for tabulate: refused before the work
+    n = brdf.layout.n_out(brdf.layout.resolve(wavelengths))
+    check_checked_memory([(grid, n)], f"{source.name}: resampling onto and checking {grid.describe()} x {n} channels")
     provenance = {k: v for k, v in getattr(table, "ds", None).attrs.items()
                   if k in ("spec_sha256", "spec_file", "comment")} if hasattr(table, "ds") else {}
     provenance["converted_from"] = source.name

@@ -519,3 +519,22 @@ def test_resampling_bound_is_met_by_a_measured_file(tmp_path):
     print(f"measured-like .bsdf -> netCDF: median {100 * d.median_rel:.2f} %, p95 {100 * d.p95_rel:.2f} %")
     assert d.median_rel < RESAMPLING_BOUND["median"] and d.p95_rel < RESAMPLING_BOUND["p95"]
     assert not d.exceeds()
+
+
+def test_memory_check_up_front_covers_the_resampled_table_and_its_checks(tmp_path, monkeypatch):
+    """A conversion onto a grid whose table fits but whose checks do not is refused before
+    resampling (as tabulate is), in one line naming the grid; nothing is written."""
+    from brdftab import table as table_mod
+
+    src = tmp_path / "a.nc"
+    brdftab.save(brdftab.models.create("lambert", albedo=[0.2, 0.5, 0.8]), src,
+                 grid={"type": "rusinkiewicz", "n_theta_h": 6, "n_theta_d": 6, "n_phi_d": 12})
+    nbytes = 30 * 20 * 40 * 3 * 8
+    monkeypatch.setattr(table_mod, "available_memory", lambda: table_mod.CHUNK_OVERHEAD + 3 * nbytes)
+    monkeypatch.setattr(table_mod, "tabulate", lambda *a, **k: pytest.fail("resampled before the memory check"))
+    r = _cli("convert", src, tmp_path / "b.nc", "--grid",
+             '{type = "rusinkiewicz", n_theta_h = 30, n_theta_d = 20, n_phi_d = 40}')
+    assert r.exit_code == 2, r.stderr
+    assert "a.nc: resampling onto and checking rusinkiewicz theta_h[30] x theta_d[20] x phi_d[40] x 3 channels needs " \
+           "about" in r.stderr, r.stderr
+    assert not (tmp_path / "b.nc").exists()
