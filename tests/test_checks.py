@@ -777,23 +777,12 @@ def test_measured_rgl_file_brighter_than_1_converts_with_a_warning(tmp_path):
 def _mitsuba_albedo(path, theta_i, n=256):
     """∫ f cosθo dωo of an RGL file by Mitsuba 3's own ``measured`` plugin: its importance
     sampling (n × n stratified samples; the sample weight is f cosθo / pdf)."""
-    import contextlib
-
     import mitsuba as mi
+    from test_rgl import mitsuba_albedo
 
-    if mi.variant() is None:
-        mi.set_variant("scalar_rgb")
-    with mi.variant_context("scalar_rgb") if mi.variant() != "scalar_rgb" else contextlib.nullcontext():
-        bsdf = mi.load_dict({"type": "measured", "filename": str(path)})
-        ctx, si = mi.BSDFContext(), mi.SurfaceInteraction3f()
-        si.wi = mi.Vector3f(float(np.float32(np.sin(theta_i))), 0.0, float(np.float32(np.cos(theta_i))))
-        g = (np.arange(n) + 0.5) / n
-        acc = np.zeros(3)
-        for a in g:
-            for b in g:
-                _, weight = bsdf.sample(ctx, si, 0.5, mi.Point2f(float(a), float(b)))
-                acc += np.array(weight, dtype=np.float64)
-    return acc / (n * n)
+    wi = np.float32([np.sin(theta_i), 0.0, np.cos(theta_i)]).tolist()
+    with mi.variant_context("scalar_rgb"):
+        return mitsuba_albedo(path, wi, n=n)
 
 
 @pytest.mark.parametrize("which", ["glossy", "measured-like"])
