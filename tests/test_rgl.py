@@ -982,32 +982,32 @@ def _table(model, grid, path):
 
 
 def test_lambert_table_to_bsdf_up_to_grazing(files):
-    """A Lambertian (albedo 0.99) *table* written to .bsdf and evaluated by Mitsuba: within 2 % of
-    ρ/π for every θi up to 85° with θo ≤ 75°, and within 5 % at θo = 80°
-    (formats/rgl-bsdf.md, Guarantees, "Tables"). The warp that followed the visible normals and
-    ωo uniform over the hemisphere left m near the normal at grazing incidence one wide cell:
-    0.75-0.8× at θi 70-85°, θo 60-75° near the mirror direction."""
+    """A Lambertian (albedo 0.99) *table* written to .bsdf and evaluated by Mitsuba at every θi
+    from 0 to 85° in 1° steps (between the file's θi nodes too), azimuths 10° apart: within
+    2 % of ρ/π at θo ≤ 70°, 3.5 % at 75°, 6 % at 80°, 15 % at 85° (formats/rgl-bsdf.md,
+    Guarantees, "Tables"). A warp whose even share was even in the unit square (θm quadratic
+    in the sample coordinate in the first column) and whose rows followed only the area above
+    the horizon read 3.7 % high near the mirror direction at θo = 70°, 4.9 % at 75°, 7.9 % at
+    80°, 26 % at 85°."""
     from brdftab.grids.rusinkiewicz import RusinkiewiczGrid
 
     table = _table(create("lambert", albedo=0.99), RusinkiewiczGrid(30, 30, 60), files / "lambert-table.nc")
     path = files / "lambert-table.bsdf"
     brdftab.save(table, path)
     f0 = 0.99 / np.pi
-    worst = {}
-    for to in (0.0, 30.0, 60.0, 70.0, 75.0, 80.0):
-        wi, wo = [], []
-        for ti in (0.0, 30.0, 60.0, 70.0, 75.0, 80.0, 85.0):
-            for dphi in np.radians(np.arange(0.0, 181.0, 30.0)):
-                wi.append(rgl.sph(np.radians(ti), 0.3))
-                wo.append(rgl.sph(np.radians(to), 0.3 + dphi))
-        wi, wo = _f32(wi), _f32(wo)
-        with mi.variant_context("scalar_rgb"):
-            got = mitsuba_eval(path, wi, wo)[:, 1] / wo[:, 2] / f0
-        worst[to] = float(np.max(np.abs(got - 1)))
+    tos = (0.0, 30.0, 45.0, 60.0, 65.0, 70.0, 75.0, 80.0, 85.0)
+    ti, to, dphi = np.meshgrid(np.radians(np.arange(0.0, 85.1, 1.0)), np.radians(tos),
+                               np.radians(np.arange(0.0, 181.0, 10.0)), indexing="ij")
+    wi = _f32(rgl.sph(ti.ravel(), 0.3))
+    wo = _f32(rgl.sph(to.ravel(), 0.3 + dphi.ravel()))
+    with mi.variant_context("scalar_rgb"):
+        got = mitsuba_eval(path, wi, wo)[:, 1] / wo[:, 2] / f0
+    err = np.abs(got - 1).reshape(ti.shape).max(axis=(0, 2))
+    worst = dict(zip(tos, err.tolist()))
     print("Lambert table, Mitsuba, worst |f/(rho/pi) - 1| by θo: "
           + ", ".join(f"{k:g}°: {100 * v:.2f} %" for k, v in worst.items()))
-    assert all(worst[to] < 0.02 for to in (0.0, 30.0, 60.0, 70.0, 75.0)), worst
-    assert worst[80.0] < 0.05, worst
+    bound = {75.0: 0.035, 80.0: 0.06, 85.0: 0.15}
+    assert all(v < bound.get(k, 0.02) for k, v in worst.items()), worst
 
 
 @pytest.mark.parametrize("spec, p95", [("torrance-sparrow-aluminum", 0.02), ("pyromark-he-torrance", 0.05)])

@@ -251,7 +251,7 @@ class RGLBSDF(BRDF):
         The file stores f·cosθo on N × N (``resolution``) warped samples; in the cells that
         straddle the horizon the interpolated f·cosθo does not vanish as cosθo does, so the
         quotient grows without bound at grazing ωo (a Lambertian's file written with the
-        default 48 × 48 samples, median over θi and azimuths: 1.3× its f at 89°, 7.9× at
+        default 48 × 48 samples, median over θi and azimuths: 1.36× its f at 89°, 7.8× at
         89.9°). Beyond θ_hold = 90° − 180°/resolution (:attr:`theta_hold`) f is therefore taken
         at θ_hold with the same azimuth (a Lambertian's file then reads within 20 % of its f;
         tests/test_rgl.py::test_f_is_held_near_the_horizon). Renderers use f·cosθo

@@ -49,6 +49,10 @@ WARP_UNIFORM = 0.5
 #: incidence (|dωo/du_m| vanishes there like u³ and with ⟨ωi·m⟩).
 WARP_SQUARE = 0.375
 WARP_COS = 0.25
+#: For a D from the back-scattering (broad: tables, Lambert), the share of the even spread's
+#: marginal over the rows (φm) placed in equal steps of cosθo between rows
+#: (:func:`_vndf_table`, ``broad``).
+WARP_ROWS_COS = 0.5
 
 
 @dataclass
@@ -148,7 +152,7 @@ def _ndf_tables(ndf, warp_ndf, nx, ny, anisotropic, name):
     return d_warp, ndf32, sigma32
 
 
-def _vndf_table(d, th_i, ph_i, nv, uniform=None):
+def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False):
     """The ``vndf`` field ``[Nφi, Nθi, nv, nv]``, float32: the density over u_m of the warp.
 
     The visible normals V = D(m)⟨ωi·m⟩₊ J, with J = 2π² u_x sinθm (the Jacobian of u -> m),
@@ -158,6 +162,15 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None):
     :data:`WARP_COS` in equal steps of cosθo along each row (|∂cosθo/∂x|), the rest even in ωo
     (⟨ωi·m⟩₊ J; dωo = 4⟨ωi·m⟩ dm). m = sph(u2theta(x), u2phi(y)): φm relative to φi (= 0)
     for isotropic files, absolute for anisotropic ones.
+
+    ``broad`` (a D from the back-scattering, whose visible normals do not concentrate the
+    samples where f·cosθo changes): the share :data:`WARP_SQUARE` is even in θm rather than in
+    the square (density ∝ x ∝ dθm/dx), so that θm, hence ωo, is linear in the sample
+    coordinate in the first column instead of quadratic (a Lambertian read 2-5 % high near the
+    mirror direction of θi ≥ 60° between the θi nodes); and a share :data:`WARP_ROWS_COS` of
+    E's marginal over the rows follows the change of cosθo from row to row (row mean of
+    |∂cosθo/∂y| over the above-horizon nodes): at grazing incidence the rows near φm = π, where
+    ωo barely moves, no longer take the rows that the steep rise of θo before them needs.
     """
     eps = WARP_UNIFORM if uniform is None else uniform
     g = np.linspace(0.0, 1.0, nv)
@@ -176,19 +189,28 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None):
         wo_z = 2.0 * dot * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
         above = (wo_z > 0) & (dot > 0)
         in_wo = unit_mean(np.where(above, dot * jac[None, None], 0.0))
-        even = WARP_SQUARE * unit_mean(np.where(above, 1.0, 0.0)) + (1.0 - WARP_SQUARE - WARP_COS) * in_wo
+        even = WARP_SQUARE * unit_mean(np.where(above, vx if broad else 1.0, 0.0)) \
+            + (1.0 - WARP_SQUARE - WARP_COS) * in_wo
         # equal steps of cosθo along each row (rows where it does not change: even)
         dc = np.where(above, np.abs(np.gradient(np.where(above, wo_z, 0.0), axis=3)), 0.0)
         rows = dc.mean(axis=3, keepdims=True)
         even = even + WARP_COS * unit_mean(np.where(rows > 0, dc, np.where(above, 1.0, 0.0)))
-        vndf = _mix_per_row(vndf, even, eps)
+        rows_b = None
+        if broad:  # equal steps of cosθo between rows (incidences where it does not change: even)
+            dy = np.where(above, np.abs(np.gradient(np.where(above, wo_z, 0.0), axis=2)), 0.0)
+            dy = dy.mean(axis=3, keepdims=True)
+            mean = dy.mean(axis=2, keepdims=True)
+            rows_b = (WARP_ROWS_COS, np.where(mean > 0, dy / np.where(mean > 0, mean, 1.0), 1.0))
+        vndf = _mix_per_row(vndf, even, eps, rows_b)
     return vndf.astype(np.float32)
 
 
-def _mix_per_row(a, b, eps):
+def _mix_per_row(a, b, eps, rows_b=None):
     """The density whose marginal over rows (φm) is (1 − ε)·a's + ε·b's and whose conditional
     along each row (θm) is (1 − ε)·a's + ε·b's: every row keeps the share ε of its columns
-    spread as ``b`` spreads them, however much ``a`` concentrates elsewhere in the row."""
+    spread as ``b`` spreads them, however much ``a`` concentrates elsewhere in the row.
+    ``rows_b`` = (share s, row density r ``[..., H, 1]`` of mean 1): b's marginal over the
+    rows is then (1 − s)·b's own + s·r."""
     def split(t):
         row = t.mean(axis=3, keepdims=True)
         cond = np.where(row > 0, t / np.where(row > 0, row, 1.0), 0.0)
@@ -196,6 +218,8 @@ def _mix_per_row(a, b, eps):
 
     ra, ca = split(a)
     rb, cb = split(b)
+    if rows_b is not None:
+        rb = (1.0 - rows_b[0]) * rb + rows_b[0] * rows_b[1]
     has_b = rb > 0
     cond = np.where(has_b, (1.0 - eps) * ca + eps * cb, ca)
     return ((1.0 - eps) * ra + eps * rb) * cond
@@ -302,7 +326,7 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
         if source == "model" else ndf
     d, ndf32, sigma32 = _ndf_tables(table_ndf, ndf, opts["ndf_resolution"], ny, anisotropic, brdf.name)
     ndf_interp, sigma_interp = bilinear(ndf32), bilinear(sigma32)
-    vndf32 = _vndf_table(d, th_i, ph_i, opts["vndf_resolution"])
+    vndf32 = _vndf_table(d, th_i, ph_i, opts["vndf_resolution"], broad=source == "backscatter")
     warp = Marginal2D(vndf32, (phi_i, theta_i))
 
     # f·cosθo·4σ̂/D̂ at the warped nodes (0 where ωo is below the horizon)
