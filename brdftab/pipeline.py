@@ -128,6 +128,8 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
             with check_progress(label, progress, _progress_delay(started)):
                 reports[job.key] = job.check(spec, layers, subject=_subject(spec, job), allow_invalid=allow,
                                              what=where)
+        if not allow:
+            _judge_sampling(spec, jobs)
         for job in jobs:
             m = job.planned
             with write_progress(m.target.name, progress, _progress_delay(started)):
@@ -200,6 +202,24 @@ def _jobs(spec, planned, provenance, progress) -> list:
 def _subject(spec, job) -> str:
     grid = getattr(job.checked, "grid", None) if job.checked is not None else job.planned.grid
     return f"{spec.path.name} on {grid.describe() if grid is not None else 'its own grid'}"
+
+
+def _judge_sampling(spec: Spec, jobs) -> None:
+    """A format that samples the model its own way (the RGL writer's warped samples) is judged
+    as a resampled conversion is (:func:`brdftab.convert.difference`, with the same bound): a
+    file that misrepresents the model beyond it is refused, naming the figures."""
+    from .convert import InvalidOutput, difference
+
+    for job in jobs:
+        if job.planned.format.prepare is None or not isinstance(job.checked, BRDF):
+            continue
+        gate, _ = difference(spec.model, job.checked)
+        beyond = gate.exceeds() if gate is not None else []
+        if beyond:
+            raise InvalidOutput(f"refusing to export {job.planned.target}: its {job.planned.format.name} samples "
+                                f"misrepresent the model {spec.model.name}: relative error of f at θi, θo ≤ 80° "
+                                f"{', '.join(beyond)} over {gate.points} check points (nothing written; choose "
+                                "finer format options, or pass --allow-invalid to write it anyway)")
 
 
 def _check_memory(spec: Spec, planned) -> None:

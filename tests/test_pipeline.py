@@ -1,6 +1,8 @@
 """The spec -> table -> validate -> write pipeline: refusal of invalid tables; one tabulation
 per target grid."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -181,3 +183,31 @@ def test_memory_check_up_front_covers_the_checks(tmp_path, monkeypatch, verb):
                         lambda: table_mod.CHUNK_OVERHEAD + table_mod.CHECKED_PEAK * nbytes + 1)
     monkeypatch.setattr(pipeline, "tabulate", table_mod.tabulate)
     getattr(pipeline, verb)(spec, progress=False)
+
+
+def test_a_format_that_samples_the_model_is_judged_against_it(tmp_path):
+    """The RGL writer samples the model on its own warped layout; a file that misrepresents the
+    model (Small 2021's 2e-4-wide peaks and diffraction band: Mitsuba reads a quarter of the
+    model's albedo from it) is refused as a resampled conversion is, naming the figures, and
+    nothing is written; a smooth model's file passes the same judgement."""
+    import re
+
+    from _cli import run
+
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "specs" / "solar-cell-small2021.toml").read_text()
+    text = re.sub(r'(?m)^path = .*$', 'path = "cell.bsdf"', text)
+    text = re.sub(r'(?m)^dtype = .*$', '', text)
+    spec = tmp_path / "cell.toml"
+    spec.write_text(text)
+    proc = run("tabulate", spec)
+    assert proc.returncode == 1, proc.stderr
+    line = proc.stderr.strip().splitlines()[-1]
+    assert re.search(r"refusing to export .*cell\.bsdf: its rgl samples misrepresent the model "
+                     r"solar-cell-small2021: relative error of f at θi, θo ≤ 80° median .* \(bound 2 %\)", line), line
+    assert not (tmp_path / "cell.bsdf").exists()
+    smooth = tmp_path / "gold.toml"
+    smooth.write_text(re.sub(r'(?m)^(path = .*|dtype = .*)$', '',
+                             (root / "specs" / "ggx-gold.toml").read_text()).replace("[[output]]", '[[output]]\npath = "gold.bsdf"'))
+    proc = run("tabulate", smooth)
+    assert proc.returncode == 0 and (tmp_path / "gold.bsdf").exists(), proc.stderr
