@@ -24,7 +24,7 @@ import numpy as np
 from . import _atomic, _signals
 from ._version import __version__
 from .cli_validate import check_options, cli_layer, origin_option, validate
-from .errors import BrdftabError
+from .errors import BrdftabError, shown
 
 DEBUG_KEY = "brdftab.debug"
 
@@ -40,7 +40,8 @@ def _debug_option():
 
 
 def _one_line(exc) -> str:
-    return " ".join(str(exc).split())
+    """A message on one line, a file name's bytes that are not UTF-8 as \\xNN escapes."""
+    return shown(" ".join(str(exc).split()))
 
 
 def _error(text: str) -> None:

@@ -23,7 +23,7 @@ import click
 
 from ._atomic import atomic_path
 from ._locks import claim
-from .errors import BrdftabError, ParameterError
+from .errors import BrdftabError, ParameterError, shown
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -140,7 +140,7 @@ def _check_one(path: Path, layers, progress, origin=None, bar=False, reads=None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BrdftabWarning)
         table = formats.read(path)
-    return [run_checks(table, layers, subject=str(path), origin=origin, progress=bar)]
+    return [run_checks(table, layers, subject=shown(path), origin=origin, progress=bar)]
 
 
 def list_checks() -> str:
@@ -225,11 +225,11 @@ def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin) ->
         try:
             reports += _check_one(path, layers, progress, origin, bar=not quiet and sys.stderr.isatty(), reads=reads)
         except BrdftabError as exc:
-            errors.append((str(path), exc))
+            errors.append((shown(path), exc))
         except OSError as exc:
-            errors.append((str(path), BrdftabError(f"{path}: {exc.strerror or exc}")))
+            errors.append((shown(path), BrdftabError(f"{path}: {exc.strerror or exc}")))
     for subject, exc in errors:
-        click.echo(f"brdftab: error: {' '.join(str(exc).split())}", err=True)
+        click.echo(f"brdftab: error: {shown(' '.join(str(exc).split()))}", err=True)
     if as_json:
         click.echo(json.dumps(run_document(reports, errors), indent=1))
     else:

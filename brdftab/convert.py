@@ -45,7 +45,7 @@ from ._locks import check_target, claim
 from ._progress import write_progress
 from ._signals import terminate_as_interrupt
 from .models.combinators import Average
-from .errors import BrdftabError, ParameterError, ValidationError
+from .errors import BrdftabError, ParameterError, ValidationError, shown
 from .grids import Grid
 
 if sys.version_info >= (3, 11):
@@ -441,7 +441,7 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
             if isinstance(checked, Table):
                 payload = checked  # the samples the file holds: written, stamped and checked
                 if resampled:  # its nodes hold interpolations of the source, not samples of a model
-                    checked.ds.attrs["resampled_from"] = source.name
+                    checked.ds.attrs["resampled_from"] = shown(source.name)
             if checked is table or checked is None:
                 report_out = report_in
             else:
@@ -492,9 +492,9 @@ def _stamp_input(table, report, source) -> None:
 
     attrs = table.ds.attrs
     attrs["input_validation_passed"] = int(report.passed)
-    attrs["input_validation_summary"] = f"{source.name}: " + "; ".join(
+    attrs["input_validation_summary"] = f"{shown(source.name)}: " + "; ".join(
         f"{o.status.upper()} {o.name}: {o.detail}" for o in report.outcomes if o.status in ("fail", "warn")) \
-        if (report.failures or report.warnings) else f"{source.name}: {report.summary()}"
+        if (report.failures or report.warnings) else f"{shown(source.name)}: {report.summary()}"
     attrs["input_validation_report"] = json.dumps(report.to_json(), separators=(",", ":"))
 
 
@@ -519,8 +519,9 @@ def _stamp_provenance(payload, table, source: Path, target: Path, grid) -> None:
     steps = str(before.attrs.get("history", "") if before is not None else "").strip()
     now = _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
     how = f"resampled onto {grid.describe()}" if grid is not None else "copied"
-    step = f"{now} brdftab {__version__}: converted {source.name} (sha256 {digest.hexdigest()}) to {target.name}, {how}"
-    attrs["converted_from"] = source.name
+    step = (f"{now} brdftab {__version__}: converted {shown(source.name)} (sha256 {digest.hexdigest()}) to "
+            f"{shown(target.name)}, {how}")
+    attrs["converted_from"] = shown(source.name)
     attrs["converted_from_sha256"] = digest.hexdigest()
     attrs["history"] = f"{steps}\n{step}" if steps else step
     if "created" not in attrs:  # a source that records no table of its own (a MERL file): made now
@@ -550,7 +551,7 @@ def _tabulate(brdf, grid, wavelengths, table, source: Path, progress):
     check_checked_memory([(grid, n)], f"{source.name}: resampling onto and checking {grid.describe()} x {n} channels")
     provenance = {k: v for k, v in getattr(table, "ds", None).attrs.items()
                   if k in ("spec_sha256", "spec_file", "comment")} if hasattr(table, "ds") else {}
-    provenance["converted_from"] = source.name
+    provenance["converted_from"] = shown(source.name)
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # samples outside the source's domain: NaN, reported by the checks

@@ -7,6 +7,7 @@ stderr and exits with code 2; the Python API lets it propagate.
 
 from __future__ import annotations
 
+import os
 
 class BrdftabError(Exception):
     """Bad input: a user-facing message, one line, no traceback needed."""
@@ -45,3 +46,14 @@ class ValidationError(BrdftabError):
 class BrdftabWarning(UserWarning):
     """Something a user should know that does not stop the work (e.g. queries outside a
     table's domain evaluated to NaN)."""
+
+
+def shown(text) -> str:
+    """``text`` (a str or a path) as valid UTF-8 text: bytes of a file name that are not UTF-8,
+    which Python keeps as lone surrogates, become ``\\xNN`` escapes (``g\\xff.binary``), so the
+    name can go into file metadata, reports and messages."""
+    text = os.fsdecode(text) if not isinstance(text, str) else text
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:  # a lone surrogate that was never a byte
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")

@@ -655,6 +655,15 @@ def test_path_that_is_not_utf8_is_one_line_or_works(tmp_path):
     merl = tmp_path / os.fsdecode(b"t\xff.binary")
     brdftab.save(models.create("lambert", albedo=0.5), merl)
     assert brdftab.open(merl).eval([0, 0, 1], [0.6, 0, 0.8])[0] == pytest.approx(0.5 / math.pi, rel=1e-6)
+    # such a file's name goes into what is made from it (provenance, reports) as \xff escapes
+    for ext in ("nc", "exr"):
+        result = _cli("convert", merl, tmp_path / f"from-merl.{ext}")
+        assert result.exit_code == 0, result.stderr
+        shown = _cli("info", tmp_path / f"from-merl.{ext}").stdout
+        assert "converted_from:        t\\xff.binary" in shown, shown
+    result = _cli("validate", merl, "--junit", tmp_path / "r.xml")
+    assert result.exit_code == 0, result.stderr
+    assert 't\\xff.binary" tests=' in (tmp_path / "r.xml").read_text(encoding="utf-8")
 
 
 def test_numpy_floating_point_warnings_are_one_line_naming_where(capsys, tmp_path):

@@ -45,7 +45,7 @@ import numpy as np
 from .._atomic import atomic_path
 from .._locks import check_target
 from .._signals import held_signals
-from ..errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
+from ..errors import BrdftabError, BrdftabWarning, FormatError, ParameterError, shown
 from ..params import parse_params, suggest
 from ..registry import Registry
 
@@ -131,8 +131,7 @@ class FileFormat:
         try:
             text.encode("utf-8") if isinstance(text, str) else text.decode("utf-8")
         except UnicodeError:
-            shown = text.encode("utf-8", "surrogateescape") if isinstance(text, str) else text
-            raise BrdftabError(f"{shown.decode('utf-8', 'backslashreplace')}: the {self.name} library opens only paths "
+            raise BrdftabError(f"{shown(text)}: the {self.name} library opens only paths "
                                "that are valid UTF-8; rename the file or folder (MERL .binary and RGL .bsdf "
                                "files take any name)") from None
 

@@ -32,7 +32,7 @@ import xarray as xr
 
 from ..channels import Layout
 from ..params import Param
-from ..errors import BrdftabError, FormatError, ParameterError
+from ..errors import BrdftabError, FormatError, ParameterError, shown
 from ..grids import RusinkiewiczGrid, merl_grid
 from . import FileFormat, cast_samples, read_head, register
 
@@ -168,7 +168,7 @@ def _attr_value(v):
     if isinstance(v, float):
         return _double(v)
     if isinstance(v, str):
-        return v
+        return shown(v)  # a file name's bytes that are not UTF-8 as \xNN escapes
     return None
 
 
@@ -184,7 +184,7 @@ def _param_attrs(params: dict) -> dict:
         elif isinstance(v, (int, float)):
             out[key] = _double(v)
         elif isinstance(v, str):
-            out[key] = v
+            out[key] = shown(v)
         elif isinstance(v, dict):
             for k, x in v.items():
                 walk(f"{key}.{k}", x)

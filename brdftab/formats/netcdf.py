@@ -21,7 +21,7 @@ import xarray as xr
 
 from .._progress import write_step
 from ..params import Param
-from ..errors import FormatError, ParameterError
+from ..errors import FormatError, ParameterError, shown
 from . import FileFormat, cast_samples, register
 
 __all__ = ["read_netcdf", "write_netcdf"]
@@ -121,7 +121,9 @@ def _attr(value):
     if isinstance(value, (list, tuple)) and value and all(isinstance(v, str) for v in value):
         value = json.dumps(list(value))  # a list of strings would be NC_STRING (netCDF-4 only)
     if isinstance(value, str) and not value.isascii():
-        return value.encode("utf-8")  # NC_CHAR holding UTF-8 (a non-ASCII str would become NC_STRING)
+        # NC_CHAR holding UTF-8 (a non-ASCII str would become NC_STRING); a file name's bytes
+        # that are not UTF-8 are written as \xNN escapes
+        return shown(value).encode("utf-8")
     return value
 
 
