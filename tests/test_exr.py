@@ -401,3 +401,33 @@ def test_values_beyond_float32_fail_finite_as_stored(tmp_path):
     assert r.returncode == 1, r.stderr
     assert f"finite: {over} of {v.size} samples are NaN or infinite (0 NaN, {over} infinite)" in r.stderr
     assert not (tmp_path / "big.exr").exists()
+
+
+def test_cf_missing_markers_stay_missing_in_exr(tmp_path):
+    """Samples a netCDF marks missing with its CF _FillValue (-999 here) are still missing in the
+    EXR file made from it (the missing_value header), not data that fails non-negative."""
+    import xarray as xr
+    from click.testing import CliRunner
+
+    from brdftab.cli import main
+
+    grid = {"type": "rusinkiewicz", "n_theta_h": 6, "n_theta_d": 5, "n_phi_d": 8}
+    brdftab.save(models.create("lambert", albedo=0.5), tmp_path / "a.nc", grid=grid)
+    with xr.open_dataset(tmp_path / "a.nc") as ds:
+        ds = ds.load()
+    v = ds["brdf"].values.copy()
+    v[0, 0, :, 0] = -999.0
+    ds["brdf"].values[:] = v
+    ds["brdf"].encoding["_FillValue"] = -999.0
+    ds.to_netcdf(tmp_path / "fill.nc")
+    source = brdftab.open(tmp_path / "fill.nc")
+    assert int(source.missing.sum()) == 8
+    r = CliRunner().invoke(main, ["convert", str(tmp_path / "fill.nc"), str(tmp_path / "fill.exr")])
+    assert r.exit_code == 0, r.stderr
+    back = brdftab.open(tmp_path / "fill.exr")
+    np.testing.assert_array_equal(back.missing, source.missing)
+    hdr = OpenEXR.File(str(tmp_path / "fill.exr"), header_only=True).parts[0].header
+    assert json.loads(hdr["missing_value"]) == [-999.0]
+    r = CliRunner().invoke(main, ["validate", str(tmp_path / "fill.exr")])
+    assert r.exit_code == 0 and "FAIL" not in r.stdout, r.stdout
+    assert "8 of 240 samples are missing" in r.stdout, r.stdout

@@ -54,7 +54,8 @@ _EXR_STANDARD = frozenset((
 #: Attributes describing the slice layout (not copied back into the table's attributes).
 _LAYOUT = frozenset(
     ["slice_layout", "x_axis", "y_axis", "y_origin", "pixel_position", "theta_h_warp", "units", "angle_units",
-     "cosine_included", "quantity", "channel_names", "wavelengths_nm", "valid_min", "valid_max", "phi_d_rad",
+     "cosine_included", "quantity", "channel_names", "wavelengths_nm", "valid_min", "valid_max", "missing_value",
+     "phi_d_rad",
      "phi_d_deg", "phi_d_index", "n_phi_d"]
     + [f"{a}_{s}" for a in AXES for s in ("rad", "node_rule", "domain_rad")])
 #: Table attributes that describe a netCDF file, not an EXR image (not written to EXR headers).
@@ -233,6 +234,9 @@ def _header(table, names) -> dict:
     for key in ("valid_min", "valid_max"):
         if key in table.ds["brdf"].attrs:
             hdr[key] = _double(np.asarray(table.ds["brdf"].attrs[key]).ravel()[0])
+    if "missing_value" in table.ds["brdf"].attrs:  # CF missing markers (a netCDF's _FillValue): still missing
+        markers = np.asarray(table.ds["brdf"].attrs["missing_value"], np.float64).ravel()
+        hdr["missing_value"] = json.dumps([None if np.isnan(x) else float(x) for x in markers])
     hdr.update(_param_attrs(table.parameters))
     hdr.update(_albedo_attrs(table.ds))
     return hdr
@@ -368,6 +372,18 @@ def _call(path, what, fn):
     if err is not None:
         raise FormatError(f"{path}: {what} ({_reason(err, log, path)})") from None
     return result, log
+
+
+def _markers(path, text) -> np.ndarray:
+    """The ``missing_value`` header: a JSON list of marker values (null: NaN samples are missing)."""
+    try:
+        vals = json.loads(text) if isinstance(text, str) else None
+    except ValueError:
+        vals = None
+    if (not isinstance(vals, list) or not vals
+            or not all(x is None or (isinstance(x, (int, float)) and not isinstance(x, bool)) for x in vals)):
+        raise FormatError(f"{path}: attribute missing_value must be a JSON list of numbers (null for NaN)")
+    return np.asarray([np.nan if x is None else x for x in vals], np.float32)
 
 
 def _scalar(v):
@@ -655,6 +671,8 @@ def _table(path, hdr, values, th, td, phi, layout, warp=None):
         x = _scalar(hdr.get(key))
         if x is not None:
             var_attrs[key] = x
+    if "missing_value" in hdr:
+        var_attrs["missing_value"] = _markers(path, hdr["missing_value"])
     ds = xr.Dataset({"brdf": xr.Variable(AXES + (chan,), values, attrs=var_attrs)}, coords=coords, attrs=attrs)
     try:
         table = Table(ds)
