@@ -1129,3 +1129,21 @@ def test_every_shipped_spec_model_writes_a_bsdf(spec):
                               ndf_phi_resolution=4)
     bsdf = rgl.RGLBSDF(payload.fields, f"{spec}.bsdf")
     assert np.all(np.isfinite(bsdf.values))
+
+
+def test_a_table_with_missing_samples_is_refused_saying_so(tmp_path):
+    """An RGL file stores no missing samples: a table with some (a netCDF's _FillValue) is refused
+    in one line that names them as the cause."""
+    import xarray as xr
+
+    grid = {"type": "rusinkiewicz", "n_theta_h": 6, "n_theta_d": 5, "n_phi_d": 8}
+    brdftab.save(brdftab.models.create("lambert", albedo=0.5), tmp_path / "a.nc", grid=grid)
+    with xr.open_dataset(tmp_path / "a.nc") as ds:
+        ds = ds.load()
+    ds["brdf"].values[0, :, :, 0] = -999.0
+    ds["brdf"].encoding["_FillValue"] = -999.0
+    ds.to_netcdf(tmp_path / "fill.nc")
+    with pytest.raises(BrdftabError, match=r"non-finite samples while writing an RGL \.bsdf file \(it has 40 missing "
+                                           r"samples, which read as NaN"):
+        brdftab.save(brdftab.open(tmp_path / "fill.nc"), tmp_path / "fill.bsdf")
+    assert not (tmp_path / "fill.bsdf").exists()

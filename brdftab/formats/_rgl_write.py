@@ -350,7 +350,11 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
             lum_weight[valid] = np.where(pdf > 0, d_hat / (4.0 * s_hat) * dwo / pdf, 0.0)
     if not np.all(np.isfinite(values)):
         bad = int((~np.isfinite(values)).sum())
-        raise BrdftabError(f"{brdf.name!r} gave {bad} non-finite samples while writing an RGL .bsdf file")
+        missing = getattr(brdf, "missing", None)
+        why = (f" (it has {int(np.asarray(missing).sum())} missing samples, which read as NaN: an RGL file "
+               "stores no missing samples; fill them or convert to a format that keeps them)"
+               if missing is not None and np.asarray(missing).any() else "")
+        raise BrdftabError(f"{brdf.name!r} gave {bad} non-finite samples while writing an RGL .bsdf file{why}")
     if n_out == 1:  # grey: the same values in R, G and B
         values = np.repeat(values, 3, axis=1)
     spectra32 = np.moveaxis(values.reshape(shape + (values.shape[1],)), -1, 2).astype(np.float32)
