@@ -271,7 +271,8 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
     would come back as missing bins: with ``negative = "zero"`` (the default) they are written
     as 0, and one warning line gives their count and the lowest value; ``negative = "missing"``
     writes them as they are (read back as missing). Samples the source declares missing stay
-    markers; negative values of an analytic model are left for the non-negative check.
+    markers; negative values of an analytic model are left for the non-negative check (written
+    anyway, with ``allow_invalid``, they are markers and read back as missing).
     """
     from ..table import Table, tabulate
 
