@@ -875,3 +875,16 @@ def test_tabulation_figures_do_not_overflow_for_huge_values():
             rms, mx, _, n = compare(table * factor, model * factor)
             assert n == 500
             np.testing.assert_allclose((rms, mx), expected, rtol=1e-12)
+
+
+def test_symmetry_that_cannot_be_measured_is_skip_not_pass(tmp_path):
+    """A MERL file of nothing but missing markers: no node pair has data on both sides, so the
+    bilateral check measured nothing — SKIP saying so, not PASS "over 0 node pairs"."""
+    from brdftab.grids import merl_grid
+
+    g = merl_grid()
+    path = tmp_path / "empty.binary"
+    path.write_bytes(np.array(g.shape, dtype="<i4").tobytes() + np.full((3,) + g.shape, -1.0).tobytes())
+    report = run_checks(brdftab.open(path), only=["bilateral"])
+    o = report.outcomes[0]
+    assert o.status == "skip" and "cannot be measured" in o.detail, (o.status, o.detail)

@@ -82,6 +82,9 @@ class _Pairwise(Check):
         f1, f2, w, flat = rows
         c = f1.shape[-1]
         s = asymmetry(f1, f2, w)
+        if not s["compared"]:  # every pair has a missing or non-finite side: nothing was measured
+            return self.skip(f"no node pair has data on both sides (of {f1.shape[0]}): the {self.what} cannot be "
+                             "measured", compared=0)
         worst = s.pop("worst")
         at = ""
         if worst is not None:
