@@ -501,8 +501,7 @@ def info(file, as_json):
         "attributes": attrs,
     }
     validation = _stored_validation(attrs)
-    if validation:
-        data["validation"] = validation
+    data.update(validation)  # "validation" and "input_validation": {"passed", "summary"}, as recorded
     if as_json:
         click.echo(json.dumps(data, default=str))
         return

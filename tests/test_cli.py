@@ -621,8 +621,8 @@ def test_info_shows_the_stored_validation_result(tmp_path):
     shown = next(line for line in lines if line.startswith("  validation:"))
     assert "FAILED: energy: max a(θi) = 1.2" in shown
     doc = json.loads(_cli("info", tmp_path / "bad.nc", "--json").stdout)
-    assert doc["validation"]["validation"]["passed"] is False
-    assert doc["validation"]["validation"]["summary"].startswith("energy: max a(θi) = 1.2")
+    assert doc["validation"]["passed"] is False
+    assert doc["validation"]["summary"].startswith("energy: max a(θi) = 1.2")
 
 
 def test_info_of_a_table_naming_no_registered_model(tmp_path):
