@@ -24,7 +24,7 @@ import numpy as np
 from . import _atomic, _signals
 from ._version import __version__
 from .cli_validate import check_options, cli_layer, origin_option, validate
-from .errors import BrdftabError, shown
+from .errors import BrdftabError, printable as _printable, shown
 
 DEBUG_KEY = "brdftab.debug"
 
@@ -466,7 +466,7 @@ def eval_(source, wi_deg, wo_deg, wavelengths, as_json):
         click.echo(json.dumps(out))
     else:
         for name, v in zip(names, f):
-            click.echo(f"{name}\t{v:.9g}")
+            click.echo(f"{_printable(name)}\t{v:.9g}")
     if not finite:
         bad = [n for n, v in zip(names, f) if not np.isfinite(v)]
         err = BrdftabError(f"{source}: f is not finite at this pair in {', '.join(bad)} (missing samples or no data "
@@ -559,26 +559,6 @@ def _stored_validation(attrs) -> dict:
             verdict = None
         out[key] = {"passed": verdict, "summary": None if summary is None else str(summary)}
     return out
-
-
-#: Characters shown escaped: they would move the cursor, recolour the terminal or reorder the
-#: text around them (bidirectional controls) instead of being seen.
-_BIDI = frozenset("\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069")
-
-
-def _printable(text: str) -> str:
-    """``text`` with control, format (e.g. bidirectional) and separator characters escaped as
-    ``\\xNN`` / ``\\uNNNN``, so that what a file stores is shown, not acted on by the terminal."""
-    import unicodedata
-
-    out = []
-    for ch in str(text):
-        if ch in _BIDI or (ch != " " and unicodedata.category(ch) in ("Cc", "Cf", "Zl", "Zp", "Cs")):
-            code = ord(ch)
-            out.append(f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}" if code < 0x10000 else f"\\U{code:08x}")
-        else:
-            out.append(ch)
-    return "".join(out)
 
 
 def _toml_value(v) -> str:

@@ -23,7 +23,7 @@ import click
 
 from ._atomic import atomic_path
 from ._locks import claim
-from .errors import BrdftabError, ParameterError, shown
+from .errors import BrdftabError, ParameterError, printable, shown
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -233,8 +233,8 @@ def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin) ->
     if as_json:
         click.echo(json.dumps(run_document(reports, errors), indent=1))
     else:
-        for r in reports:
-            click.echo(r.to_text())
+        for r in reports:  # channel names and file text as data: control and bidi characters escaped
+            click.echo("\n".join(printable(line) for line in r.to_text().splitlines()))
         if len(reports) + len(errors) > 1:
             failed = sum(not r.passed for r in reports)
             click.echo(f"{len(reports)} checked: {len(reports) - failed} passed, {failed} failed; "

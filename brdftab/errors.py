@@ -57,3 +57,23 @@ def shown(text) -> str:
         return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
     except UnicodeEncodeError:  # a lone surrogate that was never a byte
         return text.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+#: Characters shown escaped: they would move the cursor, recolour the terminal or reorder the
+#: text around them (bidirectional controls) instead of being seen.
+_BIDI = frozenset("\u061c\u200e\u200f\u202a\u202b\u202c\u202d\u202e\u2066\u2067\u2068\u2069")
+
+
+def printable(text: str) -> str:
+    """``text`` with control, format (e.g. bidirectional) and separator characters escaped as
+    ``\\xNN`` / ``\\uNNNN``, so that what a file stores is shown, not acted on by the terminal."""
+    import unicodedata
+
+    out = []
+    for ch in str(text):
+        if ch in _BIDI or (ch != " " and unicodedata.category(ch) in ("Cc", "Cf", "Zl", "Zp", "Cs")):
+            code = ord(ch)
+            out.append(f"\\x{code:02x}" if code < 0x100 else f"\\u{code:04x}" if code < 0x10000 else f"\\U{code:08x}")
+        else:
+            out.append(ch)
+    return "".join(out)

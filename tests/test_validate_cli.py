@@ -262,3 +262,25 @@ def test_an_unwritable_junit_folder_is_refused_before_any_check(tmp_path, monkey
     expected = (f"brdftab: error: {tmp_path / 'ro' / 'v.xml'}: cannot write in folder {tmp_path / 'ro'} "
                 "(Permission denied)")
     assert lines == [expected]
+
+
+def test_text_from_a_file_is_shown_escaped_in_validate_and_eval(tmp_path):
+    """Channel names are a file's data: a bidi override (U+202E) or an escape sequence in one is
+    printed escaped by validate and eval (as info does), not acted on by the terminal."""
+    import xarray as xr
+    from click.testing import CliRunner
+
+    import brdftab
+    from brdftab.cli import main
+
+    grid = {"type": "rusinkiewicz", "n_theta_h": 4, "n_theta_d": 4, "n_phi_d": 8}
+    brdftab.save(brdftab.models.create("lambert", albedo=[0.8, 0.5, 0.2]), tmp_path / "a.nc", grid=grid)
+    with xr.open_dataset(tmp_path / "a.nc") as ds:
+        ds = ds.load()
+    ds = ds.assign_coords(channel=np.array(["R\u202eX", "G\x1b[31m", "B"], dtype=object))
+    ds.to_netcdf(tmp_path / "odd.nc")
+    for args in (["validate", str(tmp_path / "odd.nc")],
+                 ["eval", str(tmp_path / "odd.nc"), "--wi-deg", "10,0", "--wo-deg", "20,180"]):
+        out = CliRunner().invoke(main, args).stdout
+        assert "\u202e" not in out and "\x1b" not in out, out
+        assert "R\\u202eX" in out or "G\\x1b[31m" in out, out
