@@ -45,7 +45,7 @@ def _one_line(exc) -> str:
 
 
 def _error(text: str) -> None:
-    click.echo(f"brdftab: error: {text}", err=True)
+    click.echo(f"brdftab: error: {_printable(text)}", err=True)  # a file name's control characters escaped
 
 
 def _quiet_closed_pipe() -> None:

@@ -229,7 +229,7 @@ def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin) ->
         except OSError as exc:
             errors.append((shown(path), BrdftabError(f"{path}: {exc.strerror or exc}")))
     for subject, exc in errors:
-        click.echo(f"brdftab: error: {shown(' '.join(str(exc).split()))}", err=True)
+        click.echo(f"brdftab: error: {printable(shown(' '.join(str(exc).split())))}", err=True)
     if as_json:
         click.echo(json.dumps(run_document(reports, errors), indent=1))
     else:

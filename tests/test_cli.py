@@ -695,3 +695,13 @@ def test_numpy_floating_point_warnings_are_one_line_naming_where(capsys, tmp_pat
     assert proc.returncode == 1 and "energy" in proc.stdout, proc
     for line in proc.stderr.splitlines():
         assert line.startswith("brdftab: warning: numerical ") and "brdftab/" in line and ", line " in line, line
+
+
+def test_error_lines_escape_control_characters_of_file_names(tmp_path):
+    """A file name is the user's data: an escape sequence in it is shown as \\x1b in the one
+    error line, not sent to the terminal (which would recolour it and hide the name)."""
+    name = tmp_path / "q\x1b[31m.nc"
+    for verb in ("info", "validate"):
+        proc = _run(verb, name)
+        line = _one_error(proc.stderr, proc.returncode, "q\\x1b[31m.nc")
+        assert "\x1b" not in line
