@@ -554,6 +554,15 @@ class _Walk:
     in_faces0: np.ndarray = None
 
 
+def _record_exits(ex, depth, u, d, esc, faces, cosines) -> None:
+    """Append the walk's exits after ``depth`` bounces (those carrying more than
+    MIN_PROBABILITY) to the lists of ``ex``."""
+    keep = esc > MIN_PROBABILITY
+    for key, val in (("u", u), ("dirs", d), ("prob", esc), ("faces", faces), ("cosines", cosines)):
+        ex[key].append(val[keep])
+    ex["bounces"].append(np.full(int(keep.sum()), depth))
+
+
 def _reflect_dir(d, f):
     """Travelling direction d after a mirror reflection on a facet of normal f."""
     return d - 2.0 * np.sum(d * f, axis=-1, keepdims=True) * f
@@ -619,10 +628,7 @@ def _walk(dist: PyramidDistribution, wi, max_bounces: int, correlated: bool) -> 
             mass_cont = mass - esc
         if depth == 1:
             first_cont[u, faces[:, 0]] = np.where(none, 0.0, mass_cont)
-        keep = esc > MIN_PROBABILITY
-        for key, val in (("u", u), ("dirs", d), ("prob", esc), ("faces", faces), ("cosines", cosines)):
-            ex[key].append(val[keep])
-        ex["bounces"].append(np.full(int(keep.sum()), depth))
+        _record_exits(ex, depth, u, d, esc, faces, cosines)
         go = (mass_cont > MIN_PROBABILITY) & ~none
         if depth == mb:
             break
@@ -728,10 +734,7 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
             p_hit = np.where(full[:, None], p_hit / np.where(full, p_hit.sum(axis=1), 1.0)[:, None], p_hit)
             mass_cont = np.where(full, mass, mass_cont)
             first_cont[u, faces[:, 0]] = np.where(none, 0.0, mass_cont)
-        keep = esc > MIN_PROBABILITY
-        for key, val in (("u", u), ("dirs", d), ("prob", esc), ("faces", faces), ("cosines", cosines)):
-            ex[key].append(val[keep])
-        ex["bounces"].append(np.full(int(keep.sum()), depth))
+        _record_exits(ex, depth, u, d, esc, faces, cosines)
         go = (mass_cont > MIN_PROBABILITY) & ~none
         if depth == mb:
             break
