@@ -788,8 +788,8 @@ def _mitsuba_albedo(path, theta_i, n=256):
 @pytest.mark.parametrize("which", ["glossy", "measured-like"])
 def test_albedo_of_an_rgl_file_is_mitsubas_own(tmp_path, which):
     """The albedo check's a(θi) of an RGL .bsdf (and so the energy figure) is the file's albedo
-    as Mitsuba reads it: within 0.3 % of Mitsuba's importance-sampled albedo at θi ≤ 85°
-    (measured ≤ 0.21 %; the sampling itself, 256 × 256 stratified samples, is good to about 0.1 %). formats/rgl-bsdf.md,
+    as Mitsuba reads it: within 0.25 % of Mitsuba's importance-sampled albedo at θi ≤ 85°
+    (measured ≤ 0.15 %; the sampling itself, 256 × 256 stratified samples, is good to about 0.1 %). formats/rgl-bsdf.md,
     Guarantees, "Albedo of a file"."""
     path = tmp_path / f"{which}.bsdf"
     if which == "glossy":
@@ -806,7 +806,7 @@ def test_albedo_of_an_rgl_file_is_mitsubas_own(tmp_path, which):
         theirs = _mitsuba_albedo(path, R(theta))
         worst = max(worst, float(np.max(np.abs(ours / theirs - 1))))
     print(f"{which}: brdftab's albedo vs Mitsuba's, θi ≤ 85°: max {100 * worst:.2f} %")
-    assert worst < 0.003
+    assert worst < 0.0025
 
 
 # -- report wording: figures defined, nothing passed that was not measured, stored = later --------

@@ -1147,3 +1147,28 @@ def test_a_table_with_missing_samples_is_refused_saying_so(tmp_path):
                                            r"samples, which read as NaN"):
         brdftab.save(brdftab.open(tmp_path / "fill.nc"), tmp_path / "fill.bsdf")
     assert not (tmp_path / "fill.bsdf").exists()
+
+
+def test_albedo_rule_follows_the_files_own_lobes(tmp_path):
+    """A file's lobe away from the mirror direction (a GGX α = 0.05 lobe on facets tilted by 30°,
+    as a pyramid's facets are) is integrated on the file's own warped samples: its albedo
+    matches a fine product quadrature of the same file (Gauss–Legendre in cosθo × 1600
+    azimuths) within 0.6 % (measured ≤ 0.41 %); the half-vector rule graded about the mirror
+    direction was up to 14 % off (1.189 instead of 1.039 at θi = 60°)."""
+    from brdftab.integrate import directional_albedo
+    from brdftab.quadrature import gauss_legendre
+
+    m = brdftab.models
+    model = m.create("rotated", term=m.create("microfacet", alpha=0.05, fresnel="schlick", f0=0.9),
+                     tilt=np.radians(30.0), tilt_azimuth=0.0)
+    brdftab.save(model, tmp_path / "tilt.bsdf")
+    b = brdftab.open(tmp_path / "tilt.bsdf")
+    mu, wmu = gauss_legendre(400, 0.0, 1.0)
+    ph = (np.arange(1600) + 0.5) * 2 * np.pi / 1600
+    wo = rgl.sph(np.arccos(mu)[:, None], ph[None, :]).reshape(-1, 3)
+    w = np.repeat(wmu, 1600) * 2 * np.pi / 1600
+    for theta in (0.0, 20.0, 60.0):
+        wi = rgl.sph(np.radians(theta), 0.0)
+        fine = b.eval_cos(np.broadcast_to(wi, wo.shape), wo).T @ w
+        got = directional_albedo(b, np.radians(theta), 0.0)
+        np.testing.assert_allclose(got, fine, rtol=0.006, err_msg=f"θi = {theta}°")
