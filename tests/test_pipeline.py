@@ -196,11 +196,11 @@ def test_a_format_that_samples_the_model_is_judged_against_it(tmp_path):
 
     root = Path(__file__).resolve().parents[1]
     text = (root / "specs" / "solar-cell-small2021.toml").read_text()
-    text = re.sub(r'(?m)^path = .*$', 'path = "cell.bsdf"', text)
+    text = re.sub(r'(?m)^path = .*$', 'path = "cell.bsdf"\nresolution = 24', text)  # a small file: fast checks
     text = re.sub(r'(?m)^dtype = .*$', '', text)
     spec = tmp_path / "cell.toml"
     spec.write_text(text)
-    proc = run("tabulate", spec)
+    proc = run("tabulate", spec, "--level", "energy=warn")  # the coarse file's energy excess is not the subject
     assert proc.returncode == 1, proc.stderr
     line = proc.stderr.strip().splitlines()[-1]
     assert re.search(r"refusing to export .*cell\.bsdf: its rgl samples misrepresent the model "
