@@ -563,6 +563,17 @@ def _record_exits(ex, depth, u, d, esc, faces, cosines) -> None:
     ex["bounces"].append(np.full(int(keep.sum()), depth))
 
 
+def _advance(pi, kj, depth, d, faces, cosines, cd, F):
+    """The walk's states ``pi`` reflected off their next faces ``kj`` (bounce ``depth`` + 1):
+    directions, face sequences and incidence cosines."""
+    d = _reflect_dir(d[pi], F[kj])
+    faces = faces[pi].copy()
+    faces[:, depth] = kj
+    cosines = cosines[pi].copy()
+    cosines[:, depth] = -cd[pi, kj]
+    return d, faces, cosines
+
+
 def _reflect_dir(d, f):
     """Travelling direction d after a mirror reflection on a facet of normal f."""
     return d - 2.0 * np.sum(d * f, axis=-1, keepdims=True) * f
@@ -637,12 +648,7 @@ def _walk(dist: PyramidDistribution, wi, max_bounces: int, correlated: bool) -> 
         pi, kj = np.nonzero(pj > 0)
         pk = pj[pi, kj]
         u = u[pi]
-        cos_l = -cd[pi, kj]
-        d = _reflect_dir(d[pi], F[kj])
-        faces = faces[pi].copy()
-        faces[:, depth] = kj
-        cosines = cosines[pi].copy()
-        cosines[:, depth] = cos_l
+        d, faces, cosines = _advance(pi, kj, depth, d, faces, cosines, cd, F)
         if correlated:
             exps = exps[pi]
             coefs = coefs[pi] * pk[:, None]
@@ -743,12 +749,7 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
         ok = nxt > MIN_PROBABILITY
         pi, kj, nxt = pi[ok], kj[ok], nxt[ok]
         u, code, mass = u[pi], 4 * code[pi] + kj, nxt
-        cos_l = -cd[pi, kj]
-        d = _reflect_dir(d[pi], F[kj])
-        faces = faces[pi].copy()
-        faces[:, depth] = kj
-        cosines = cosines[pi].copy()
-        cosines[:, depth] = cos_l
+        d, faces, cosines = _advance(pi, kj, depth, d, faces, cosines, cd, F)
     cat = {k: np.concatenate(v) for k, v in ex.items()}
     return _Walk(cat["u"], cat["dirs"], cat["prob"], cat["bounces"], cat["faces"], cat["cosines"],
                  u[go], mass_cont[go], cosines[go], p_first, first_cont, np.where(front, 0.0, p_first),
