@@ -10,7 +10,8 @@ compiler inlines). Both
 * keep **IEEE semantics** (``error_model="numpy"``: 1/0 is inf, 0/0 NaN, never an exception)
   and **no fast-math**: compiled results equal the numpy code they replace to the last few ulp
   (the parity tests hold them to 1e-12 relative);
-* are imported lazily by the modules that use them, so ``brdftab --help`` never loads numba.
+* compile on their **first call**: importing a module that defines kernels does not import
+  numba, so ``brdftab --help`` never loads it.
 
 Kernels that compose registered components (a microfacet model's D, G and F) are generated as
 source text by :func:`generated_module`, written to the kernel cache folder
@@ -20,37 +21,87 @@ them like any other file, so a composition compiles once per machine, not once p
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib.util
+import inspect
 import os
 import sys
 import tempfile
 from pathlib import Path
 
-import numba
+__all__ = ["kernel", "device", "prange", "cache_dir", "generated_module", "threads", "source_hash", "OPTIONS"]
 
-__all__ = ["kernel", "device", "prange", "cache_dir", "generated_module", "threads"]
+#: Options of every compiled function (see the module docstring).
+OPTIONS = dict(cache=True, error_model="numpy", fastmath=False, nogil=True)
 
-prange = numba.prange
 
-_OPTIONS = dict(cache=True, error_model="numpy", fastmath=False, nogil=True)
+def prange(*args):
+    """numba's parallel range inside kernels; the plain ``range`` when called from Python."""
+    return range(*args)
+
+
+class _Lazy:
+    """A function compiled on its first call, so that importing the module that defines it
+    does not import numba. A kernel's module-level ``prange`` and the :func:`device` functions
+    it calls are swapped for numba's own in the module's namespace when it compiles (numba
+    reads them from there)."""
+
+    def __init__(self, fn, options, is_device):
+        functools.update_wrapper(self, fn)
+        self.py_func = fn
+        self.options = options
+        self.is_device = is_device
+        self._compiled = None
+
+    def compiled(self):
+        if self._compiled is None:
+            import numba
+
+            g = self.py_func.__globals__
+            for name, value in list(g.items()):
+                if isinstance(value, _Lazy) and value is not self:
+                    g[name] = value.compiled()
+                elif value is prange:
+                    g[name] = numba.prange
+            self._compiled = numba.njit(**self.options)(self.py_func)
+        return self._compiled
+
+    def __call__(self, *args):
+        return self.compiled()(*args)
 
 
 def kernel(fn=None, *, parallel: bool = True):
-    """Compile ``fn`` as a whole-array kernel (``parallel`` loops with :data:`prange`)."""
+    """Compile ``fn`` on first call as a whole-array kernel (``parallel`` loops over
+    :func:`prange`)."""
     def wrap(f):
-        return numba.njit(parallel=parallel, **_OPTIONS)(f)
+        return _Lazy(f, dict(parallel=parallel, **OPTIONS), False)
     return wrap(fn) if fn is not None else wrap
 
 
 def device(fn):
     """Compile ``fn`` as a scalar function inlined into the kernels that call it."""
-    return numba.njit(inline="always", **_OPTIONS)(fn)
+    return _Lazy(fn, dict(inline="always", **OPTIONS), True)
 
 
 def threads() -> int:
     """Threads a parallel kernel runs on (numba's setting; ``NUMBA_NUM_THREADS`` sets it)."""
+    import numba
+
     return numba.get_num_threads()
+
+
+def source_hash(*functions) -> str:
+    """A short hash of the source text of ``functions`` (plain or :func:`device` ones): part of
+    a generated module's name, so editing a component's scalar function compiles anew."""
+    h = hashlib.sha256()
+    for f in functions:
+        f = getattr(f, "py_func", f)
+        try:
+            h.update(inspect.getsource(f).encode())
+        except (OSError, TypeError):
+            h.update(f"{f.__module__}.{f.__qualname__}".encode())
+    return h.hexdigest()[:16]
 
 
 def cache_dir() -> Path:
@@ -84,6 +135,8 @@ def generated_module(prefix: str, source: str):
     The file is written once (atomically: a half-written file is never imported) and never
     changed afterwards, so numba's cache of the kernels in it stays valid across processes.
     """
+    import numba
+
     digest = hashlib.sha256(f"{numba.__version__}\n{sys.version}\n{source}".encode()).hexdigest()[:20]
     name = f"_brdftab_{prefix}_{digest}"
     if name in _MODULES:
