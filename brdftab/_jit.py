@@ -1,8 +1,8 @@
 """Compiled kernels: the one place that says how brdftab compiles its loops (numba).
 
-Every kernel in the package is compiled with :func:`kernel` (a whole-array loop, run in
-parallel over the machine's cores) or :func:`device` (a scalar function a kernel calls and the
-compiler inlines). Both
+Every kernel in the package is compiled with :func:`kernel` (a whole-array loop, which
+:func:`parallel_rows` runs on the machine's cores, one range of rows per thread) or
+:func:`device` (a scalar function a kernel calls and the compiler inlines). Both
 
 * compile **once per machine**: numba's on-disk cache, next to the source file when that is
   writable, else in the user's cache folder (numba's own fallback; set ``NUMBA_CACHE_DIR`` to
@@ -30,7 +30,8 @@ import sys
 import tempfile
 from pathlib import Path
 
-__all__ = ["kernel", "device", "prange", "cache_dir", "generated_module", "threads", "source_hash", "OPTIONS"]
+__all__ = ["kernel", "device", "prange", "cache_dir", "generated_module", "threads", "parallel_rows", "source_hash",
+           "OPTIONS"]
 
 #: Options of every compiled function (see the module docstring).
 OPTIONS = dict(cache=True, error_model="numpy", fastmath=False, nogil=True)
@@ -58,22 +59,24 @@ class _Lazy:
         if self._compiled is None:
             import numba
 
+            self._compiled = numba.njit(**self.options)(self.py_func)  # compiles at its first call
             g = self.py_func.__globals__
-            for name, value in list(g.items()):
-                if isinstance(value, _Lazy) and value is not self:
+            for name in self.py_func.__code__.co_names:  # the globals the function reads
+                value = g.get(name)
+                if isinstance(value, _Lazy):
                     g[name] = value.compiled()
                 elif value is prange:
                     g[name] = numba.prange
-            self._compiled = numba.njit(**self.options)(self.py_func)
         return self._compiled
 
     def __call__(self, *args):
         return self.compiled()(*args)
 
 
-def kernel(fn=None, *, parallel: bool = True):
-    """Compile ``fn`` on first call as a whole-array kernel (``parallel`` loops over
-    :func:`prange`)."""
+def kernel(fn=None, *, parallel: bool = False):
+    """Compile ``fn`` on first call as a whole-array kernel (with ``parallel``, numba's
+    parallel loops over :func:`prange`; by default a serial loop that :func:`parallel_rows`
+    runs on several threads)."""
     def wrap(f):
         return _Lazy(f, dict(parallel=parallel, **OPTIONS), False)
     return wrap(fn) if fn is not None else wrap
@@ -85,22 +88,59 @@ def device(fn):
 
 
 def threads() -> int:
-    """Threads a parallel kernel runs on (numba's setting; ``NUMBA_NUM_THREADS`` sets it)."""
-    import numba
+    """Threads the kernels run on: ``BRDFTAB_THREADS``, else the cores this process may use."""
+    env = os.environ.get("BRDFTAB_THREADS", "")
+    if env.strip().isdigit() and int(env) > 0:
+        return int(env)
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # not on Linux
+        return max(1, os.cpu_count() or 1)
 
-    return numba.get_num_threads()
+
+#: Rows below which a kernel runs on the calling thread alone (a thread hand-off costs more).
+MIN_PARALLEL_ROWS = 1 << 15
+_POOL: list = []
+
+
+def parallel_rows(fn, m: int):
+    """Call ``fn(lo, hi)`` over ``[0, m)`` split into one contiguous range per thread, in a
+    pool of :func:`threads` threads (the kernels release the GIL), and return the results in
+    order. Kernels are compiled serial (``parallel=False``): they compile in about half the
+    time of numba's parallel loops, and the threads here give the same speed-up."""
+    t = threads()
+    if t == 1 or m < MIN_PARALLEL_ROWS:
+        return [fn(0, m)]
+    if not _POOL or _POOL[0][0] != t:
+        from concurrent.futures import ThreadPoolExecutor
+
+        _POOL[:] = [(t, ThreadPoolExecutor(max_workers=t, thread_name_prefix="brdftab-kernel"))]
+    edges = [m * k // t for k in range(t + 1)]
+    futures = [_POOL[0][1].submit(fn, lo, hi) for lo, hi in zip(edges[:-1], edges[1:])]
+    return [f.result() for f in futures]
 
 
 def source_hash(*functions) -> str:
-    """A short hash of the source text of ``functions`` (plain or :func:`device` ones): part of
-    a generated module's name, so editing a component's scalar function compiles anew."""
+    """A short hash of the source text of ``functions`` (plain or :func:`device` ones) and of
+    every function they call through their module's globals, transitively: part of a
+    generated module's name, so editing any function a kernel inlines compiles anew (numba's
+    cache alone watches only the file of the kernel itself)."""
+    import types
+
     h = hashlib.sha256()
-    for f in functions:
+    seen = set()
+    todo = list(functions)
+    while todo:
+        f = todo.pop(0)
         f = getattr(f, "py_func", f)
+        if not isinstance(f, types.FunctionType) or f in seen:
+            continue
+        seen.add(f)
         try:
             h.update(inspect.getsource(f).encode())
         except (OSError, TypeError):
             h.update(f"{f.__module__}.{f.__qualname__}".encode())
+        todo += [f.__globals__.get(name) for name in f.__code__.co_names]
     return h.hexdigest()[:16]
 
 
@@ -149,6 +189,7 @@ def generated_module(prefix: str, source: str):
         os.replace(tmp, path)
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # numba's cache finds the kernels' module by name
     spec.loader.exec_module(module)
     _MODULES[name] = module
     return module

@@ -25,6 +25,8 @@ Metadata every BRDF carries:
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 
 from .channels import Layout
@@ -32,7 +34,7 @@ from .errors import ParameterError
 from .geometry import as_directions, normalize
 from .params import Kind, parse_params, register_kind
 
-__all__ = ["BRDF", "Model", "EVAL_CHUNK", "ORIGINS"]
+__all__ = ["BRDF", "Model", "EVAL_CHUNK", "ORIGINS", "numpy_reference"]
 
 #: The values of :attr:`BRDF.origin`.
 ORIGINS = ("analytic", "measured", "unknown")
@@ -42,6 +44,22 @@ EVAL_CHUNK = 1 << 16
 #: Directions with z at or below this are on or below the horizon (f = 0). ``sph_to_vec(π/2, φ)``
 #: has z ≈ 6e-17, not 0; without the margin a grazing node would be evaluated with cosθ ≈ 1e-17.
 HORIZON = 1e-12
+
+
+#: Whether :meth:`BRDF.eval` runs compiled kernels where a BRDF has them (see
+#: :func:`numpy_reference`).
+_COMPILED = [True]
+
+
+@contextlib.contextmanager
+def numpy_reference():
+    """Evaluate every BRDF by its numpy code inside the block (not by its compiled kernel): the
+    reference the parity tests and the benchmarks compare the kernels with."""
+    _COMPILED.append(False)
+    try:
+        yield
+    finally:
+        _COMPILED.pop()
 
 
 def _unit(w, name):
@@ -118,6 +136,9 @@ class BRDF:
         lead = wi.shape[:-1]
         wi = wi.reshape(-1, 3)
         wo = wo.reshape(-1, 3)
+        run = self.kernel(lam, n)
+        if run is not None:
+            return _eval_compiled(run, wi, wo, n, assume_unit).reshape(lead + (n,))
         out = np.zeros((wi.shape[0], n))
         if assume_unit:  # grid nodes: unit and finite by construction
             above = np.flatnonzero((wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
@@ -144,11 +165,58 @@ class BRDF:
         """
         raise NotImplementedError
 
+    def kernel(self, lam, n):
+        """The compiled evaluation at wavelengths ``lam`` (None: channels) with ``n`` outputs, or
+        None (numpy, :meth:`_eval`): a function ``run(wi, wo, state, out, add)`` that writes (or,
+        with ``add``, adds) f of the pairs ``wi``, ``wo[M, 3]`` (unit, C-contiguous float64) into
+        the rows of ``out[M, n]`` whose ``state`` is 1 (above the horizon; see
+        :mod:`brdftab._brdf_kernels`), leaving the others as they are. Built once per (λ, n)
+        by :meth:`_kernel`; None inside :func:`numpy_reference`."""
+        if not _COMPILED[-1]:
+            return None
+        key = (None if lam is None else np.asarray(lam, float).tobytes(), n)
+        cache = self.__dict__.setdefault("_kernels", {})
+        if key not in cache:
+            cache[key] = self._kernel(lam, n)
+        return cache[key]
+
+    def _kernel(self, lam, n):
+        """Build :meth:`kernel`'s function (None: this BRDF has no compiled form)."""
+        return None
+
     def describe(self) -> str:
         return f"{self.name}({', '.join(f'{k}={v!r}' for k, v in self.parameters.items())})"
 
     def __repr__(self):
         return self.describe()
+
+
+def _eval_compiled(run, wi, wo, n, assume_unit):
+    """:meth:`BRDF.eval` through a compiled ``run`` (one pass sorts the pairs, one evaluates;
+    memory beyond the output: one byte per pair, plus normalized copies of directions that
+    are not unit)."""
+    from ._brdf_kernels import prepare
+    from ._jit import parallel_rows
+
+    wi = np.ascontiguousarray(wi)
+    wo = np.ascontiguousarray(wo)
+    m = wi.shape[0]
+    out = np.zeros((m, n))
+    state = np.empty(m, np.uint8)
+
+    def sort(lo, hi):
+        return prepare(wi[lo:hi], wo[lo:hi], state[lo:hi], out[lo:hi], assume_unit, HORIZON)
+
+    if any(parallel_rows(sort, m)):
+        wi = _unit(wi, "wi")
+        wo = _unit(wo, "wo")
+        parallel_rows(sort, m)
+
+    def evaluate(lo, hi):
+        run(wi[lo:hi], wo[lo:hi], state[lo:hi], out[lo:hi], False)
+
+    parallel_rows(evaluate, m)
+    return out
 
 
 class Model(BRDF):

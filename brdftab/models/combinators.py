@@ -58,6 +58,16 @@ class Sum(Model):
         """The terms: each is integrated on a rule that follows its own lobe."""
         return list(self.terms)
 
+    def _kernel(self, lam, n):
+        runs = [t.kernel(lam, n) for t in self.terms]
+        if any(r is None for r in runs):
+            return None
+
+        def evaluate(wi, wo, state, out, add):
+            for k, run in enumerate(runs):  # in order, as the numpy sum adds them
+                run(wi, wo, state, out, add or k > 0)
+        return evaluate
+
     def _eval(self, wi, wo, lam, n):
         out = self.terms[0]._eval(wi, wo, lam, n)
         for t in self.terms[1:]:
@@ -101,6 +111,24 @@ class Scale(_OneTerm):
         if not parts:
             return None
         return [Scale(factor=self.factor, term=p) for p in parts]
+
+    def _kernel(self, lam, n):
+        run = self.term.kernel(lam, n)
+        if run is None:
+            return None
+        from .._brdf_kernels import add_scaled, scale_rows
+
+        s = np.ascontiguousarray(np.broadcast_to(np.asarray(self.factor.at(lam, n), float), (n,)))
+
+        def evaluate(wi, wo, state, out, add):
+            if add:  # the term's values are needed apart from what out holds
+                part = np.zeros_like(out)
+                run(wi, wo, state, part, False)
+                add_scaled(state, out, part, s)
+            else:
+                run(wi, wo, state, out, False)
+                scale_rows(state, out, s)
+        return evaluate
 
     def _eval(self, wi, wo, lam, n):
         return self.term._eval(wi, wo, lam, n) * np.asarray(self.factor.at(lam, n))[None, :]

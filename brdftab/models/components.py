@@ -19,6 +19,20 @@ A new D, G or F is one class here or in its own module, registered with :func:`r
 
 A distribution declares its own parameters; ``microfacet`` offers the union of every
 registered distribution's parameters and accepts each only with the distribution that uses it.
+
+**Compiled kernels.** Beside its array methods a component gives the scalar form of its
+physics, which the models that compose it fuse into one compiled loop
+(:mod:`brdftab.models.fused`); a component without one is evaluated by its array methods:
+
+* a distribution: ``jit_D(hx, hy, hz, p)`` and ``jit_lambda(wx, wy, wz, p)`` with
+  ``p = jit_params()`` (a float64 vector; [α_x, α_y] by default);
+* a shadowing term: ``jit_G(wix, wiy, wiz, wox, woy, woz, hx, hy, hz, lam_i, lam_o)``, where
+  ``lam_i``, ``lam_o`` are the distribution's Λ when ``jit_needs_lambda`` is True (else 0);
+* a Fresnel term: ``jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c)`` for channel ``c`` of
+  ``p = jit_params(lam, n)`` (by default one column per declared parameter, per channel).
+
+Each is a plain function (or a :func:`brdftab._jit.device` one) of floats, in the same
+arithmetic as the array method it mirrors; the parity test holds the two to 1e-12.
 """
 
 from __future__ import annotations
@@ -29,9 +43,11 @@ from ..channels import Layout, combine_layouts
 from ..errors import ParameterError
 from ..params import Param, parse_params, suggest
 from ..registry import Registry
-from .distributions import d_beckmann, d_ggx, lambda_beckmann, lambda_ggx
-from .fresnel import INDEX_MAX, INDEX_MIN, fresnel_conductor, fresnel_dielectric, fresnel_schlick
-from .rayleigh_rice import q_unpolarized
+from .distributions import (beckmann_D_scalar, beckmann_lambda_scalar, d_beckmann, d_ggx, ggx_D_scalar,
+                            ggx_lambda_scalar, lambda_beckmann, lambda_ggx)
+from .fresnel import (INDEX_MAX, INDEX_MIN, conductor_scalar, dielectric_scalar, fresnel_conductor,
+                      fresnel_dielectric, fresnel_schlick, schlick_scalar)
+from .rayleigh_rice import q_unpolarized, q_unpolarized_scalar
 
 __all__ = ["COMPONENTS", "Component", "register", "get", "create", "Distribution", "Shadowing", "Fresnel"]
 
@@ -118,6 +134,14 @@ class Distribution(Component):
         """Widths along the frame's x and y axes of an anisotropic lobe, else None."""
         return None if self.isotropic else (self.alpha_x, self.alpha_y)
 
+    #: Scalar forms for the compiled kernels (see the module docstring); None: not compiled.
+    jit_D = None
+    jit_lambda = None
+
+    def jit_params(self) -> np.ndarray:
+        """The parameter vector ``p`` of :attr:`jit_D` and :attr:`jit_lambda`: [α_x, α_y]."""
+        return np.array([self.alpha_x, self.alpha_y], float)
+
     def D(self, h):
         raise NotImplementedError
 
@@ -149,6 +173,8 @@ class Beckmann(Distribution):
     name = "beckmann"
     summary = "Beckmann (Gaussian slopes) distribution, exact Smith Λ (erfc form)."
     reference = "Beckmann1963; Walter2007; Heitz2014"
+    jit_D = staticmethod(beckmann_D_scalar)
+    jit_lambda = staticmethod(beckmann_lambda_scalar)
 
     def D(self, h):
         return d_beckmann(h, self.alpha_x, self.alpha_y)
@@ -166,6 +192,8 @@ class GGX(Distribution):
     name = "ggx"
     summary = "GGX (Trowbridge–Reitz) distribution, exact Smith Λ."
     reference = "Trowbridge1975; Walter2007; Heitz2014"
+    jit_D = staticmethod(ggx_D_scalar)
+    jit_lambda = staticmethod(ggx_lambda_scalar)
 
     def D(self, h):
         return d_ggx(h, self.alpha_x, self.alpha_y)
@@ -186,6 +214,10 @@ class GGX(Distribution):
 
 class Shadowing(Component):
     kind = "shadowing"
+    #: Scalar form for the compiled kernels (see the module docstring); None: not compiled.
+    jit_G = None
+    #: Whether :attr:`jit_G` takes the distribution's Λ of wi and wo.
+    jit_needs_lambda = False
 
     def G(self, wi, wo, h, dist: Distribution):
         raise NotImplementedError
@@ -200,6 +232,12 @@ class SmithSeparable(Shadowing):
     def G(self, wi, wo, h, dist):
         return 1.0 / ((1.0 + dist.lambda_(wi)) * (1.0 + dist.lambda_(wo)))
 
+    jit_needs_lambda = True
+
+    @staticmethod
+    def jit_G(wix, wiy, wiz, wox, woy, woz, hx, hy, hz, lam_i, lam_o):
+        return 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
+
 
 @register
 class SmithHeightCorrelated(Shadowing):
@@ -209,6 +247,12 @@ class SmithHeightCorrelated(Shadowing):
 
     def G(self, wi, wo, h, dist):
         return 1.0 / (1.0 + dist.lambda_(wi) + dist.lambda_(wo))
+
+    jit_needs_lambda = True
+
+    @staticmethod
+    def jit_G(wix, wiy, wiz, wox, woy, woz, hx, hy, hz, lam_i, lam_o):
+        return 1.0 / (1.0 + lam_i + lam_o)
 
 
 @register
@@ -224,6 +268,13 @@ class VGroove(Shadowing):
             g = np.minimum(1.0, 2.0 * hz * np.minimum(wo[..., 2], wi[..., 2]) / wo_h)
         return np.where(wo_h > 0, np.maximum(g, 0.0), 0.0)
 
+    @staticmethod
+    def jit_G(wix, wiy, wiz, wox, woy, woz, hx, hy, hz, lam_i, lam_o):
+        wo_h = wox * hx + woy * hy + woz * hz
+        if not wo_h > 0:
+            return 0.0
+        return max(min(1.0, 2.0 * hz * min(woz, wiz) / wo_h), 0.0)
+
 
 @register
 class NoShadowing(Shadowing):
@@ -232,6 +283,10 @@ class NoShadowing(Shadowing):
 
     def G(self, wi, wo, h, dist=None):
         return np.ones(np.broadcast_shapes(wi.shape, wo.shape)[:-1])
+
+    @staticmethod
+    def jit_G(wix, wiy, wiz, wox, woy, woz, hx, hy, hz, lam_i, lam_o):
+        return 1.0
 
 
 # --------------------------------------------------------------------------------------------
@@ -245,6 +300,14 @@ class Fresnel(Component):
     def layout(self) -> Layout:
         vals = {k: v for k, v in self.values.items() if hasattr(v, "layout")}
         return combine_layouts([v.layout for v in vals.values()], names=vals) if vals else Layout()
+
+    #: Scalar form for the compiled kernels (see the module docstring); None: not compiled.
+    jit_F = None
+
+    def jit_params(self, lam, n) -> np.ndarray:
+        """``p[n, k]`` of :attr:`jit_F`: each declared parameter's value per channel, in order."""
+        cols = [np.broadcast_to(np.asarray(self.values[p.name].at(lam, n), float), (n,)) for p in self.params]
+        return np.stack(cols, axis=1) if cols else np.zeros((n, 0))
 
     def F(self, cos_d, lam, n):
         """Reflectance at ``cos_d[M]`` (cosine to the microfacet normal), shape ``(M, n)`` or scalar."""
@@ -265,6 +328,10 @@ class NoFresnel(Fresnel):
     def F(self, cos_d, lam, n):
         return 1.0
 
+    @staticmethod
+    def jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c):
+        return 1.0
+
 
 @register
 class Schlick(Fresnel):
@@ -275,6 +342,10 @@ class Schlick(Fresnel):
 
     def F(self, cos_d, lam, n):
         return fresnel_schlick(cos_d[:, None], self.values["f0"].at(lam, n))
+
+    @staticmethod
+    def jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c):
+        return schlick_scalar(cos_d, p[c, 0])
 
 
 @register
@@ -287,6 +358,10 @@ class Dielectric(Fresnel):
 
     def F(self, cos_d, lam, n):
         return fresnel_dielectric(cos_d[:, None], self.values["n"].at(lam, n))
+
+    @staticmethod
+    def jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c):
+        return dielectric_scalar(cos_d, p[c, 0])
 
 
 @register
@@ -302,6 +377,10 @@ class Conductor(Fresnel):
 
     def F(self, cos_d, lam, n):
         return fresnel_conductor(cos_d[:, None], self.values["n"].at(lam, n), self.values["k"].at(lam, n))
+
+    @staticmethod
+    def jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c):
+        return conductor_scalar(cos_d, p[c, 0], p[c, 1])
 
 
 @register
@@ -324,6 +403,10 @@ class RayleighRice(Fresnel):
         eta = np.broadcast_to(np.asarray(self.values["n"].at(lam, n), float), (n,))
         kap = np.broadcast_to(np.asarray(self.values["k"].at(lam, n), float), (n,))
         return q_unpolarized(wi[:, None, :], wo[:, None, :], eta[None, :], kap[None, :])
+
+    @staticmethod
+    def jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c):
+        return q_unpolarized_scalar(wix, wiy, wiz, wox, woy, woz, p[c, 0], p[c, 1])
 
 
 # --------------------------------------------------------------------------------------------

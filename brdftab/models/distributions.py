@@ -20,8 +20,12 @@ References
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.special import erfc
+
+from .._jit import device
 
 __all__ = ["d_beckmann", "d_ggx", "lambda_beckmann", "lambda_ggx"]
 
@@ -82,3 +86,53 @@ def lambda_ggx(w, alpha_x, alpha_y=None):
     alpha_y = alpha_x if alpha_y is None else alpha_y
     t2 = _alpha_tan2(w, alpha_x, alpha_y)
     return 0.5 * (np.sqrt(1.0 + t2) - 1.0)
+
+
+# --------------------------------------------------------------------------------------------
+# Scalar forms for compiled kernels (one direction; ``p`` = [α_x, α_y]). The same arithmetic,
+# in the same order, as the array forms above: the parity tests hold them to 1e-12.
+
+
+@device
+def ggx_D_scalar(hx, hy, hz, p):
+    """:func:`d_ggx` of one unit normal."""
+    if hz <= 0.0:
+        return 0.0
+    ax, ay = p[0], p[1]
+    u = hx / ax
+    v = hy / ay
+    t = u * u + v * v + hz * hz
+    return 1.0 / (np.pi * ax * ay * t * t)
+
+
+@device
+def ggx_lambda_scalar(wx, wy, wz, p):
+    """:func:`lambda_ggx` of one direction."""
+    u = wx * p[0]
+    v = wy * p[1]
+    t2 = (u * u + v * v) / (wz * wz)
+    return 0.5 * (math.sqrt(1.0 + t2) - 1.0)
+
+
+@device
+def beckmann_D_scalar(hx, hy, hz, p):
+    """:func:`d_beckmann` of one unit normal."""
+    if hz <= 0.0:
+        return 0.0
+    ax, ay = p[0], p[1]
+    c2 = hz * hz
+    u = hx / ax
+    v = hy / ay
+    return math.exp(-(u * u + v * v) / c2) / (np.pi * ax * ay * c2 * c2)
+
+
+@device
+def beckmann_lambda_scalar(wx, wy, wz, p):
+    """:func:`lambda_beckmann` of one direction."""
+    u = wx * p[0]
+    v = wy * p[1]
+    t2 = (u * u + v * v) / (wz * wz)
+    if not t2 > 0.0:
+        return 0.0
+    a = 1.0 / math.sqrt(t2)
+    return 0.5 * (math.exp(-a * a) / (a * _SQRT_PI) - math.erfc(a))

@@ -15,7 +15,11 @@ References
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from .._jit import device
 
 __all__ = ["fresnel_amplitudes", "fresnel_complex", "fresnel_conductor", "fresnel_dielectric",
            "fresnel_schlick", "INDEX_MIN", "INDEX_MAX"]
@@ -95,3 +99,48 @@ def fresnel_schlick(cos_i, f0):
     """Schlick's approximation ``F0 + (1 − F0)(1 − cosθ)⁵``."""
     c = np.clip(cos_i, 0.0, 1.0)
     return f0 + (1.0 - f0) * (1.0 - c) ** 5
+
+
+# --------------------------------------------------------------------------------------------
+# Scalar forms for compiled kernels: one cosine, the index of channel ``c`` in row ``p[c]``;
+# the same arithmetic, in the same order, as the array forms above (parity tests: 1e-12).
+
+
+@device
+def conductor_scalar(cos_i, n, k):
+    """:func:`fresnel_conductor` of one cosine."""
+    c = min(max(cos_i, 0.0), 1.0)
+    c2 = c * c
+    s2 = 1.0 - c2
+    n2 = n * n
+    k2 = k * k
+    t0 = n2 - k2 - s2
+    a2b2 = math.sqrt(t0 * t0 + 4.0 * n2 * k2)
+    a = math.sqrt(max(0.5 * (a2b2 + t0), 0.0))
+    t1 = a2b2 + c2
+    t2 = 2.0 * a * c
+    t3 = c2 * a2b2 + s2 * s2
+    t4 = t2 * s2
+    rs = (t1 - t2) / (t1 + t2) if t1 + t2 > 0 else 1.0
+    rp = rs * ((t3 - t4) / (t3 + t4) if t3 + t4 > 0 else 1.0)
+    return min(max(0.5 * (rs + rp), 0.0), 1.0)
+
+
+@device
+def dielectric_scalar(cos_i, eta):
+    """:func:`fresnel_dielectric` of one cosine."""
+    c = min(max(cos_i, 0.0), 1.0)
+    s2_t = (1.0 - c * c) / (eta * eta)
+    if (eta < 1.0 and s2_t >= 1.0) or c == 0.0:
+        return 1.0
+    ct = math.sqrt(max(1.0 - s2_t, 0.0))
+    r_s = (c - eta * ct) / (c + eta * ct)
+    r_p = (eta * c - ct) / (eta * c + ct)
+    return 0.5 * (r_s * r_s + r_p * r_p)
+
+
+@device
+def schlick_scalar(cos_i, f0):
+    """:func:`fresnel_schlick` of one cosine."""
+    c = min(max(cos_i, 0.0), 1.0)
+    return f0 + (1.0 - f0) * math.pow(1.0 - c, 5.0)

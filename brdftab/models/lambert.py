@@ -32,6 +32,15 @@ class Lambert(Model):
         self.layout = albedo.layout
         self.energy_conserving = True
 
+    def _kernel(self, lam, n):
+        from .._brdf_kernels import constant_rows
+
+        value = np.ascontiguousarray(np.broadcast_to(np.asarray(self.albedo.at(lam, n) / np.pi, float), (n,)))
+
+        def evaluate(wi, wo, state, out, add):
+            constant_rows(state, out, value, add)
+        return evaluate
+
     def _eval(self, wi, wo, lam, n):
         rho = self.albedo.at(lam, n)
         return np.broadcast_to(rho / np.pi, (wi.shape[0], n)).copy()

@@ -94,6 +94,19 @@ class Microfacet(Model):
         """The normal distribution D(h) [sr⁻¹] at unit microfacet normals ``h[..., 3]`` (0 where h_z <= 0)."""
         return self.dist.D(np.asarray(h, float))
 
+    def _kernel(self, lam, n):
+        from .fused import microfacet_kernel
+
+        run = microfacet_kernel(self.dist, self.shadow, self.fres)
+        if run is None:
+            return None
+        pd = self.dist.jit_params()
+        pf = np.ascontiguousarray(self.fres.jit_params(lam, n))
+
+        def evaluate(wi, wo, state, out, add):
+            run(wi, wo, state, out, pd, pf, add)
+        return evaluate
+
     def _eval(self, wi, wo, lam, n):
         h = wi + wo
         norm = np.sqrt(np.einsum("...i,...i->...", h, h))

@@ -44,7 +44,12 @@ References: [Stover2012] §5 (Rayleigh–Rice vector perturbation theory); NIST 
 
 from __future__ import annotations
 
+import cmath
+import math
+
 import numpy as np
+
+from .._jit import device
 
 __all__ = ["scattering_azimuth", "q_amplitudes", "q_components", "q_sum", "q_unpolarized"]
 
@@ -105,3 +110,31 @@ def q_unpolarized(wi, wo, n, k=0.0):
     """Half-sum ½(Q_ss + Q_pp + Q_ps + Q_sp): the unpolarized factor, equal to the Fresnel
     reflectance at the mirror direction."""
     return 0.5 * q_sum(wi, wo, n, k)
+
+
+@device
+def q_unpolarized_scalar(wix, wiy, wiz, wox, woy, woz, n, k):
+    """:func:`q_unpolarized` of one pair (the compiled kernels' form; same arithmetic)."""
+    ci, co = wiz, woz
+    si = math.hypot(wix, wiy)
+    so = math.hypot(wox, woy)
+    den = si * so
+    if den > 1e-300:
+        cos_phi = -(wix * wox + wiy * woy) / den
+        sin_phi = -(wix * woy - wiy * wox) / den
+    else:
+        cos_phi, sin_phi = 1.0, 0.0
+    z = complex(n, k)
+    eps = z * z
+    qi = cmath.sqrt(eps - si * si + 0j)
+    qs = cmath.sqrt(eps - so * so + 0j)
+    e1 = eps - 1.0
+    a_s_i = ci + qi
+    a_s_s = co + qs
+    a_p_i = eps * ci + qi
+    a_p_s = eps * co + qs
+    q_ss = e1 * cos_phi / (a_s_i * a_s_s)
+    q_pp = e1 * (eps * si * so - qs * qi * cos_phi) / (a_p_i * a_p_s)
+    q_ps = -e1 * qi * sin_phi / (a_p_i * a_s_s)
+    q_sp = -e1 * qs * sin_phi / (a_s_i * a_p_s)
+    return 0.5 * (abs(q_ss) ** 2 + abs(q_pp) ** 2 + abs(q_ps) ** 2 + abs(q_sp) ** 2)

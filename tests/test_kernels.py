@@ -1,0 +1,162 @@
+"""Compiled kernels against the numpy code they replace (:func:`brdftab.brdf.numpy_reference`).
+
+Every registered D, G and F component that has a scalar form is fused into a kernel with
+fixed partners and compared with the array methods to 1e-12 relative, over random pairs
+plus the rows the BRDF protocol treats specially: below and exactly on the horizon,
+non-unit, huge and tiny directions, NaN and inf (NaN in both), grey, RGB and spectral
+channels. The models whose evaluation is compiled are listed, so a kernel that silently
+stops being used (the numpy path taken instead) fails here.
+"""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from brdftab import models
+from brdftab._jit import cache_dir
+from brdftab.brdf import numpy_reference
+from brdftab.errors import ParameterError
+from brdftab.models import components as C
+
+ROOT = Path(__file__).resolve().parents[1]
+RTOL = 1e-12
+
+
+def _pairs(seed, n=20000):
+    rng = np.random.default_rng(seed)
+
+    def upper(k):
+        v = rng.normal(size=(k, 3))
+        v[:, 2] = np.abs(v[:, 2])
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    wi, wo = upper(n), upper(n)
+    # near the mirror direction too (the peak of narrow lobes)
+    h = upper(n // 4) * np.array([0.1, 0.1, 1.0])
+    h /= np.linalg.norm(h, axis=1, keepdims=True)
+    wo[: n // 4] = 2 * np.sum(wi[: n // 4] * h, axis=1, keepdims=True) * h - wi[: n // 4]
+    special_i = np.array([[0.3, 0.2, -0.5], [0.6, 0.0, 0.0], [3.0, 1.0, 2.0], [1e200, 0.0, 1e200],
+                          [1e-300, 1e-300, 2e-300], [np.nan, 0.0, 1.0], [0.0, np.inf, 1.0], [0.2, 0.1, 0.97],
+                          [0.0, 0.0, 1.0], [1.0, 0.0, 1e-13]])
+    special_o = np.array([[0.1, 0.1, 0.9], [0.2, 0.3, 0.9], [-1.0, 0.5, 4.0], [0.0, 1.0, 1.0], [0.5, 0.5, 0.5],
+                          [0.0, 0.0, 1.0], [0.1, 0.1, 0.9], [0.2, 0.1, 0.97], [0.0, 0.0, 1.0], [0.3, 0.0, 0.9]])
+    return np.concatenate([wi, special_i]), np.concatenate([wo, special_o])
+
+
+def _assert_parity(m, wavelengths=None, seed=0):
+    wi, wo = _pairs(seed)
+    lam = m.layout.resolve(wavelengths)
+    assert m.kernel(lam, m.layout.n_out(lam)) is not None, f"{m.describe()}: no compiled kernel"
+    got = m.eval(wi, wo, wavelengths)
+    with numpy_reference():
+        assert m.kernel(lam, m.layout.n_out(lam)) is None
+        ref = m.eval(wi, wo, wavelengths)
+    assert got.shape == ref.shape
+    assert np.array_equal(np.isnan(got), np.isnan(ref)), f"{m.describe()}: NaN rows differ"
+    assert np.array_equal(got == 0, ref == 0), f"{m.describe()}: zero rows differ"
+    ok = ~np.isnan(ref)
+    rel = np.abs(got[ok] - ref[ok]) / np.maximum(np.abs(ref[ok]), 1e-300)
+    assert rel.max() <= RTOL, f"{m.describe()}: compiled differs from numpy by {rel.max():.3g} (relative)"
+    # broadcasting (one wi against many wo) goes through the same kernel
+    one = m.eval(wi[7], wo[:50], wavelengths)
+    with numpy_reference():
+        one_ref = m.eval(wi[7], wo[:50], wavelengths)
+    np.testing.assert_allclose(one, one_ref, rtol=RTOL, atol=0)
+
+
+def _compiled(kind):
+    """The registered components of ``kind`` that have scalar forms."""
+    need = {"distribution": ("jit_D", "jit_lambda"), "shadowing": ("jit_G",), "fresnel": ("jit_F",)}[kind]
+    return sorted(n for n, cls in C.COMPONENTS[kind].items() if all(getattr(cls, a) is not None for a in need))
+
+
+_FRESNEL_VALUES = {"schlick": dict(f0=[0.04, 0.5, 0.95]), "dielectric": dict(n=[1.2, 1.5, 0.7]),
+                   "conductor": dict(n=[0.2, 0.45, 1.3], k=[3.4, 2.6, 1.8]),
+                   "rayleigh-rice": dict(n=[0.2, 1.5, 1.3], k=[3.4, 0.0, 1.8]), "none": {}}
+
+
+@pytest.mark.parametrize("dist", _compiled("distribution"))
+def test_every_compiled_distribution_matches_numpy(dist):
+    for i, rough in enumerate([dict(alpha=0.3), dict(alpha_x=0.05, alpha_y=0.6)]):
+        _assert_parity(models.create("microfacet", distribution=dist, shadowing="smith", fresnel="none", **rough),
+                       seed=i)
+
+
+@pytest.mark.parametrize("shadowing", _compiled("shadowing"))
+def test_every_compiled_shadowing_matches_numpy(shadowing):
+    _assert_parity(models.create("microfacet", distribution="beckmann", alpha_x=0.2, alpha_y=0.4, shadowing=shadowing,
+                                 fresnel="none"), seed=3)
+
+
+@pytest.mark.parametrize("fresnel", _compiled("fresnel"))
+def test_every_compiled_fresnel_matches_numpy(fresnel):
+    values = _FRESNEL_VALUES.get(fresnel)
+    assert values is not None, f"teach this test the parameters of the Fresnel term {fresnel!r}"
+    _assert_parity(models.create("microfacet", distribution="ggx", alpha=0.15, fresnel=fresnel, **values), seed=4)
+
+
+def test_spectral_and_grey_channels_match_numpy():
+    spectral = models.create("microfacet", distribution="ggx", alpha=0.2, fresnel="conductor",
+                             n={"wavelengths_nm": [400, 550, 700], "values": [1.5, 0.4, 0.2]},
+                             k={"wavelengths_nm": [400, 550, 700], "values": [1.9, 2.5, 4.0]})
+    _assert_parity(spectral, wavelengths=np.linspace(400, 700, 7))
+    _assert_parity(models.create("microfacet", distribution="ggx", alpha=0.2, fresnel="dielectric", n=1.5))
+
+
+def test_combinators_and_lambert_match_numpy():
+    gold = models.create("microfacet", distribution="ggx", alpha=0.2, fresnel="conductor", n=[0.2, 0.45, 1.3],
+                         k=[3.4, 2.6, 1.8])
+    white = models.create("lambert", albedo=0.7)
+    pair = models.create("sum", terms=[white, gold])
+    _assert_parity(white)
+    _assert_parity(pair)
+    _assert_parity(models.create("scale", factor=[0.2, 0.5, 0.9], term=pair))
+    # a scaled term inside a sum adds to what the sum holds already
+    _assert_parity(models.create("sum", terms=[gold, models.create("scale", factor=0.5, term=white)]))
+
+
+def test_compiled_evaluation_keeps_the_input_rules():
+    m = models.create("microfacet", distribution="ggx", alpha=0.3)
+    with pytest.raises(ParameterError, match="zero length"):
+        m.eval([[0.0, 0.0, 0.0]], [[0.0, 0.0, 1.0]])
+    f = m.eval([[0.0, 0.0, 2.0], [np.nan, 0, 1], [0, 0, -1]], [[0.0, 0.0, 1.0]] * 3)
+    assert f[0, 0] == pytest.approx(1.0 / (4 * np.pi * 0.09)) and np.isnan(f[1, 0]) and f[2, 0] == 0
+
+
+#: Registered components that have no scalar form yet: their models are evaluated by numpy.
+NOT_COMPILED = {("distribution", "torrance-sparrow"), ("distribution", "pyramid"), ("shadowing", "pyramid")}
+
+
+def test_every_component_but_the_listed_ones_has_a_kernel():
+    missing = {(kind, n) for kind in C.COMPONENTS for n in C.COMPONENTS[kind] if n not in _compiled(kind)}
+    assert missing == NOT_COMPILED
+
+
+def test_a_composition_compiles_once_per_machine(tmp_path):
+    """A second process loads the fused kernel from the on-disk caches: nothing compiles."""
+    code = ("import numpy as np, sys\n"
+            "from brdftab import models\n"
+            "m = models.create('microfacet', distribution='beckmann', alpha=0.37, shadowing='smith-height-correlated',"
+            " fresnel='schlick', f0=0.25)\n"
+            "m.eval([0.1, 0.2, 0.9], [0.3, -0.1, 0.8])\n"
+            "mod = next(v for k, v in sys.modules.items() if k.startswith('_brdftab_microfacet_'))\n"
+            "s = mod.run.stats\n"
+            "print(sum(s.cache_hits.values()), sum(s.cache_misses.values()))\n")
+    env = dict(os.environ, BRDFTAB_CACHE_DIR=str(tmp_path / "kernels"), NUMBA_CACHE_DIR=str(tmp_path / "numba"),
+               PYTHONPATH=str(ROOT))
+    first = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    second = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert first.stdout.split() == ["0", "1"], first.stdout + first.stderr
+    assert second.stdout.split() == ["1", "0"], second.stdout + second.stderr
+
+
+def test_the_kernel_cache_falls_back_when_its_folder_cannot_be_written(tmp_path, monkeypatch):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv("BRDFTAB_CACHE_DIR", str(blocker / "kernels"))  # under a file: never a folder
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert cache_dir() == tmp_path / "xdg" / "brdftab" / "kernels"
