@@ -184,6 +184,13 @@ class BRDF:
         """Build :meth:`kernel`'s function (None: this BRDF has no compiled form)."""
         return None
 
+    def tabulate_into(self, grid, lam, n, values, bar=None) -> bool:
+        """Fill ``values[grid.shape + (n,)]`` with f at ``grid``'s nodes by a method that uses
+        the grid's structure (e.g. a term that depends on θh alone evaluated once per θh node),
+        updating the progress ``bar``; False (nothing written) when this BRDF has none for this
+        grid, and :func:`brdftab.table.tabulate` evaluates pair by pair."""
+        return False
+
     def describe(self) -> str:
         return f"{self.name}({', '.join(f'{k}={v!r}' for k, v in self.parameters.items())})"
 

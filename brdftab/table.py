@@ -924,7 +924,8 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
     size = grid.size
     bar = _progress(size, progress)
     try:
-        for start in range(0, size, chunk_size):
+        structured = brdf.tabulate_into(grid, lam, n, values, bar)
+        for start in range(0, 0 if structured else size, chunk_size):
             stop = min(start + chunk_size, size)
             wi, wo = grid.directions(start, stop)
             flat[start:stop] = brdf.eval(wi, wo, lam, assume_unit=True)

@@ -31,6 +31,10 @@ physics, which the models that compose it fuse into one compiled loop
 * a Fresnel term: ``jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c)`` for channel ``c`` of
   ``p = jit_params(lam, n)`` (by default one column per declared parameter, per channel).
 
+Each also declares what it ``depends`` on — D the half vector, F θd unless it says
+``"pair"`` — so a tabulation on a Rusinkiewicz grid evaluates D once per half-vector node and F
+once per θd node (:func:`brdftab.models.fused.microfacet_tabulation`).
+
 Each is a plain function (or a :func:`brdftab._jit.device` one) of floats, in the same
 arithmetic as the array method it mirrors; the parity test holds the two to 1e-12.
 """
@@ -101,6 +105,9 @@ class Distribution(Component):
     """A microfacet normal distribution with roughness α (isotropic) or α_x, α_y."""
 
     kind = "distribution"
+    #: What D depends on: the half vector alone (structured tabulation evaluates it once per
+    #: (θh, φh) node).
+    depends = "half"
     params = (
         Param("alpha", "float", "Isotropic roughness α (slope parameter of D).", default=None,
               minimum=MIN_ALPHA, used_when="unless alpha_x/alpha_y"),
@@ -295,6 +302,15 @@ class NoShadowing(Shadowing):
 
 class Fresnel(Component):
     kind = "fresnel"
+    #: What F depends on: ``"difference"`` — the microfacet angle θd alone (structured
+    #: tabulation evaluates it once per θd node) — or ``"pair"``, the whole geometry (a term
+    #: that overrides :meth:`F_pair` must say so; checked when the class is defined).
+    depends = "difference"
+
+    def __init_subclass__(cls, **kwargs):
+        super().__init_subclass__(**kwargs)
+        if cls.F_pair is not Fresnel.F_pair and cls.depends != "pair":
+            raise TypeError(f"{cls.__name__} overrides F_pair, so it depends on the whole pair: set depends = 'pair'")
 
     @property
     def layout(self) -> Layout:
@@ -389,6 +405,7 @@ class RayleighRice(Fresnel):
     summary = ("Rayleigh–Rice polarization factor Q = ½(Q_ss + Q_pp + Q_ps + Q_sp) of θi, θs, φs for an index "
                "n + ik (equals the Fresnel reflectance at the mirror direction).")
     reference = "Stover2012; Butler2015"
+    depends = "pair"
     params = (
         Param("n", "channel", "Real part of the relative refractive index.", minimum=INDEX_MIN, maximum=INDEX_MAX),
         Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik).", default=0.0,

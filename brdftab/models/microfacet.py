@@ -107,6 +107,47 @@ class Microfacet(Model):
             run(wi, wo, state, out, pd, pf, add)
         return evaluate
 
+    def tabulate_into(self, grid, lam, n, values, bar=None) -> bool:
+        """On a Rusinkiewicz grid: D once per half-vector node, F once per θd node (unless it
+        depends on the whole pair), G per pair (:func:`~brdftab.models.fused.microfacet_tabulation`)."""
+        from ..grids.rusinkiewicz import RusinkiewiczGrid
+
+        if not isinstance(grid, RusinkiewiczGrid) or self.kernel(lam, n) is None:
+            return False
+        from .fused import microfacet_tabulation
+
+        run = microfacet_tabulation(self.dist, self.shadow, self.fres)
+        if run is None:
+            return False
+        from .._jit import parallel_rows
+        from ..brdf import HORIZON
+
+        if grid.anisotropic:
+            (cth, sth), (cph, sph), (ctd, std), (cpd, spd) = grid._trig
+        else:
+            (cth, sth), (ctd, std), (cpd, spd) = grid._trig
+            cph, sph = np.ones(1), np.zeros(1)
+        nh, nph, ntd, npd = len(cth), len(cph), len(ctd), len(cpd)
+        h = np.stack([sth[:, None] * cph[None, :], sth[:, None] * sph[None, :],
+                      np.broadcast_to(cth[:, None], (nh, nph))], axis=-1)
+        with np.errstate(all="ignore"):
+            d_nodes = np.ascontiguousarray(self.dist.D(h), float)
+            f = self.fres.F(ctd, lam, n) if self.fres.depends != "pair" else 1.0
+        f_nodes = np.ascontiguousarray(np.broadcast_to(np.asarray(f, float).reshape(-1, n) if np.ndim(f) else f,
+                                                       (ntd, n)))
+        pd = self.dist.jit_params()
+        pf = np.ascontiguousarray(self.fres.jit_params(lam, n))
+        out = values.reshape(nh, nph, ntd, npd, n)
+        trig = [np.ascontiguousarray(a, float) for a in (cth, sth, cph, sph, ctd, std, cpd, spd)]
+        rows = max(1, (1 << 18) // max(1, nph * ntd * npd))  # θh rows between progress updates
+        for lo in range(0, nh, rows):
+            hi = min(nh, lo + rows)
+            parallel_rows(lambda a, b: run(*trig, d_nodes, f_nodes, pd, pf, out, lo + a, lo + b, HORIZON),
+                          hi - lo)
+            if bar is not None:
+                bar.update((hi - lo) * nph * ntd * npd)
+        return True
+
     def _eval(self, wi, wo, lam, n):
         h = wi + wo
         norm = np.sqrt(np.einsum("...i,...i->...", h, h))
