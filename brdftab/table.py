@@ -925,7 +925,10 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
     bar = _progress(size, progress)
     try:
         structured = brdf.tabulate_into(grid, lam, n, values, bar)
-        for start in range(0, 0 if structured else size, chunk_size):
+        run = None if structured else brdf.kernel(lam, n)
+        if run is not None:
+            _tabulate_compiled(run, grid, flat, chunk_size, bar)
+        for start in range(0, 0 if (structured or run is not None) else size, chunk_size):
             stop = min(start + chunk_size, size)
             wi, wo = grid.directions(start, stop)
             flat[start:stop] = brdf.eval(wi, wo, lam, assume_unit=True)
@@ -936,6 +939,38 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
             bar.close()
     return make_table(values, grid, brdf.layout if lam is None else Layout(None, lam), brdf=brdf,
                       provenance=provenance, specular=_specular_samples(brdf, lam))
+
+
+def _tabulate_compiled(run, grid, flat, chunk_size, bar):
+    """:func:`tabulate` through a compiled evaluation ``run`` (:meth:`BRDF.kernel`): each thread
+    takes ``chunk_size`` nodes at a time, writes their directions (:meth:`Grid.directions_into`),
+    sorts them (horizon) and evaluates into the table (float64) or a buffer (float32)."""
+    from ._brdf_kernels import prepare
+    from ._jit import parallel_rows, threads
+    from .brdf import HORIZON
+
+    n = flat.shape[1]
+    step = chunk_size * threads()
+    for start in range(0, flat.shape[0], step):
+        stop = min(start + step, flat.shape[0])
+
+        def work(lo, hi, start=start):
+            lo, hi = start + lo, start + hi
+            wi = np.empty((hi - lo, 3))
+            wo = np.empty((hi - lo, 3))
+            grid.directions_into(lo, hi, wi, wo)
+            direct = flat.dtype == np.float64
+            out = flat[lo:hi] if direct else np.empty((hi - lo, n))
+            out[:] = 0.0
+            state = np.empty(hi - lo, np.uint8)
+            prepare(wi, wo, state, out, True, HORIZON)
+            run(wi, wo, state, out, False)
+            if not direct:
+                flat[lo:hi] = out
+
+        parallel_rows(work, stop - start)
+        if bar is not None:
+            bar.update(stop - start)
 
 
 def carries_specular_delta(brdf) -> bool:

@@ -136,6 +136,12 @@ class Grid:
     def _directions(self, idx):
         raise NotImplementedError
 
+    def directions_into(self, start: int, stop: int, wi: np.ndarray, wo: np.ndarray) -> None:
+        """Write the directions of flat sample indices ``start..stop`` into ``wi``, ``wo[m, 3]``
+        (float64, C order): :meth:`directions` without its temporaries. Grids with a compiled
+        form override it; the results are the same bits."""
+        wi[:], wo[:] = self.directions(start, stop)
+
     def _coordinates(self, wi, wo, isotropic: bool = False) -> list:
         """Per-axis coordinates [rad] of direction pairs (folds applied)."""
         raise NotImplementedError

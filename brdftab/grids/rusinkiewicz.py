@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import kernel
 from ..errors import ParameterError
 from ..geometry import _hd_to_io_trig, io_to_hd
 from ..params import Param, unknown
@@ -127,6 +128,14 @@ class RusinkiewiczGrid(Grid):
         ih, itd, ipd = idx
         return _hd_to_io_trig(cth[ih], sth[ih], 1.0, 0.0, ctd[itd], std[itd], cpd[ipd], spd[ipd])
 
+    def directions_into(self, start, stop, wi, wo):
+        if self.anisotropic:
+            (cth, sth), (cph, sph), (ctd, std), (cpd, spd) = self._trig
+        else:
+            (cth, sth), (ctd, std), (cpd, spd) = self._trig
+            cph, sph = np.ones(1), np.zeros(1)
+        _directions_into(cth, sth, cph, sph, ctd, std, cpd, spd, start, stop, wi, wo)
+
     def node_above_horizon(self) -> np.ndarray:
         """Both directions above the horizon, from the node angles (φh does not change z):
         wi_z = cosθh cosθd − sinθh sinθd cosφd, wo_z = cosθh cosθd + sinθh sinθd cosφd."""
@@ -239,3 +248,31 @@ def _infer(ds, fold):
             if np.allclose(uniform_values(vals.size, 0.0, HALF_PI, pos, warp), vals, rtol=0, atol=1e-9):
                 return spacing, pos
     return "explicit", "explicit"
+
+
+@kernel
+def _directions_into(cth, sth, cph, sph, ctd, std, cpd, spd, start, stop, wi, wo):
+    """:meth:`RusinkiewiczGrid.directions_into`: the arithmetic of
+    :func:`brdftab.geometry._hd_to_io_trig` per node, from the per-axis cosines and sines."""
+    nph, ntd, npd = cph.shape[0], ctd.shape[0], cpd.shape[0]
+    for k in range(stop - start):
+        f = start + k
+        ipd = f % npd
+        f //= npd
+        itd = f % ntd
+        f //= ntd
+        iph = f % nph
+        ih = f // nph
+        dx = std[itd] * cpd[ipd]
+        dy = std[itd] * spd[ipd]
+        dz = ctd[itd]
+        ax = cth[ih] * dx + sth[ih] * dz
+        az = -sth[ih] * dx + cth[ih] * dz
+        bx = cth[ih] * dx - sth[ih] * dz
+        bz = sth[ih] * dx + cth[ih] * dz
+        wi[k, 0] = cph[iph] * ax - sph[iph] * dy
+        wi[k, 1] = sph[iph] * ax + cph[iph] * dy
+        wi[k, 2] = az
+        wo[k, 0] = -(cph[iph] * bx) + sph[iph] * dy
+        wo[k, 1] = -(sph[iph] * bx) - cph[iph] * dy
+        wo[k, 2] = bz

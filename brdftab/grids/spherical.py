@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._jit import kernel
 from ..errors import ParameterError
 from ..geometry import sph_to_vec, vec_to_sph
 from ..params import Param
@@ -83,6 +84,23 @@ class SphericalGrid(Grid):
             po = pi_ + np.pi + po
         return sph_to_vec(ti, pi_), sph_to_vec(to, po)
 
+    def directions_into(self, start, stop, wi, wo):
+        tables = getattr(self, "_direction_tables", None)
+        if tables is None:
+            # sines and cosines of every θi, φi and (absolute) θo, φo the nodes use: the values
+            # sph_to_vec takes per pair in :meth:`_directions`, by the same functions
+            ti, pi_, to, po = (a.values for a in self.axes)
+            if self.relative_to == "specular":
+                to = ti[:, None] + to[None, :]
+                po = pi_[:, None] + np.pi + po[None, :]
+            else:
+                to = np.broadcast_to(to, (len(ti), len(to)))
+                po = np.broadcast_to(po, (len(pi_), len(po)))
+            tables = [np.ascontiguousarray(t) for t in (np.sin(ti), np.cos(ti), np.cos(pi_), np.sin(pi_), np.sin(to),
+                                                        np.cos(to), np.cos(po), np.sin(po))]
+            self._direction_tables = tables
+        _spherical_into(*tables, start, stop, wi, wo)
+
     def _coordinates(self, wi, wo, isotropic: bool = False):
         ti, pi_ = vec_to_sph(wi)
         to, po = vec_to_sph(wo)
@@ -149,3 +167,24 @@ def _phi_axis(name, values, centred=False, domain=None):
         if seam <= np.diff(v).max() * (1 + 1e-9):
             return Axis(name, v, "linear", TWO_PI)
     return Axis(name, v, "linear", None, TWO_PI, domain=domain)
+
+
+@kernel
+def _spherical_into(sti, cti, cpi, spi, sto, cto, cpo, spo, start, stop, wi, wo):
+    """:meth:`SphericalGrid.directions_into`: sph_to_vec's products from the node tables
+    (θo and φo per (θi, θo) and (φi, φo), relative to the mirror direction or not)."""
+    npi, nto, npo = cpi.shape[0], sto.shape[1], cpo.shape[1]
+    for k in range(stop - start):
+        f = start + k
+        ipo = f % npo
+        f //= npo
+        ito = f % nto
+        f //= nto
+        ipi = f % npi
+        iti = f // npi
+        wi[k, 0] = sti[iti] * cpi[ipi]
+        wi[k, 1] = sti[iti] * spi[ipi]
+        wi[k, 2] = cti[iti]
+        wo[k, 0] = sto[iti, ito] * cpo[ipi, ipo]
+        wo[k, 1] = sto[iti, ito] * spo[ipi, ipo]
+        wo[k, 2] = cto[iti, ito]
