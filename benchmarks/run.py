@@ -56,7 +56,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import brdftab  # noqa: E402
 from brdftab.grids import RusinkiewiczGrid, merl_grid  # noqa: E402
-from _timing import GOLD  # noqa: E402
+from _timing import GOLD, hemisphere_pairs  # noqa: E402
 
 SPECS = ROOT / "specs"
 LLVM = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
@@ -87,19 +87,6 @@ class Result:
     pairs: int | None = None
     ratio: dict = field(default_factory=dict)    # anchor -> median ratio (None: anchor not available)
     error: str = ""
-
-
-def hemisphere_pairs(n, seed=0):
-    """``n`` pairs (wi, wo) uniform over the upper hemisphere's solid angle, float64 (n, 3)."""
-    rng = np.random.default_rng(seed)
-
-    def dirs():
-        c = rng.uniform(0.0, 1.0, n)
-        phi = rng.uniform(-np.pi, np.pi, n)
-        s = np.sqrt(1.0 - c * c)
-        return np.stack([s * np.cos(phi), s * np.sin(phi), c], axis=-1)
-
-    return dirs(), dirs()
 
 
 def ggx_model():
