@@ -154,10 +154,10 @@ class Mitsuba:
 class Bench:
     """The fixtures the rows share, each built on first use."""
 
-    def __init__(self, args):
+    def __init__(self, args, tmp: Path):
         self.args = args
         self.n = args.pairs
-        self.tmp = Path(tempfile.mkdtemp(prefix="brdftab-bench-"))
+        self.tmp = tmp                 # the files the rows write (removed at the end)
         self.notes = []
 
     @functools.cached_property
@@ -393,28 +393,28 @@ def main(argv=None):
             setattr(args, key, value)
     warnings.simplefilter("ignore")   # the models' own warnings (e.g. fit ranges) are not the benchmark's
 
-    b = Bench(args)
     try:
         only = re.compile(args.only or "", re.IGNORECASE)
     except re.error as exc:
         ap.error(f"--only: {exc}")
-    selected = [r for r in rows(b) if only.search(r.label)]
-    if not selected:
-        ap.error(f"no row matches {args.only!r}")
-    import numba
+    with tempfile.TemporaryDirectory(prefix="brdftab-bench-") as tmp:
+        b = Bench(args, Path(tmp))
+        selected = [r for r in rows(b) if only.search(r.label)]
+        if not selected:
+            ap.error(f"no row matches {args.only!r}")
+        import numba
 
-    start = os.getloadavg()
-    print(f"brdftab {brdftab.__version__}, numpy {np.__version__}, numba {numba.__version__}, "
-          f"Python {platform.python_version()}, {platform.machine()}, {os.cpu_count()} CPUs, "
-          f"{args.pairs:,} pairs, {args.rounds} rounds, {args.budget:g} s per row", flush=True)
-    results = []
-    for row in selected:
-        print(f"  {row.label} ...", file=sys.stderr, flush=True)
-        try:
-            results.append(measure(b, row))
-        except Exception as exc:  # one broken row does not hide the others
-            res = Result(row, error=f"{type(exc).__name__}: {exc}".splitlines()[0])
-            results.append(res)
+        start = os.getloadavg()
+        print(f"brdftab {brdftab.__version__}, numpy {np.__version__}, numba {numba.__version__}, "
+              f"Python {platform.python_version()}, {platform.machine()}, {os.cpu_count()} CPUs, "
+              f"{args.pairs:,} pairs, {args.rounds} rounds, {args.budget:g} s per row", flush=True)
+        results = []
+        for row in selected:
+            print(f"  {row.label} ...", file=sys.stderr, flush=True)
+            try:
+                results.append(measure(b, row))
+            except Exception as exc:  # one broken row does not hide the others
+                results.append(Result(row, error=f"{type(exc).__name__}: {exc}".splitlines()[0]))
     print(table(results))
     for note in b.notes:
         print(f"- {note}")
