@@ -1066,9 +1066,9 @@ def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, pro
     return Table(ds)
 
 
-#: Peak memory of a tabulation relative to its output table, measured with
-#: ``benchmarks/bench_tabulate.py`` (float64 output 1.2x, float32 1.66x), plus the chunk
-#: temporaries (~30 MiB at the default chunk size).
+#: Peak memory of a tabulation relative to its output table (float64 output 1.2x, float32
+#: 1.66x, measured with tracemalloc), plus the chunk temporaries (~30 MiB at the default chunk
+#: size); ``benchmarks/bench_check_memory.py`` checks the peak resident memory against both.
 TABULATE_PEAK = {8: 1.25, 4: 1.7}
 CHUNK_OVERHEAD = 64 << 20
 #: Peak memory of tabulating a float64 table and then running the default checks on it, relative
