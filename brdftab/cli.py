@@ -6,6 +6,11 @@ line ``brdftab: error: …`` on stderr and exits with code 2, never a traceback 
 before or after the verb, shows it). A refused validation exits with 1 where documented,
 SIGINT with 130, SIGTERM with 143; a closed output pipe (``brdftab models | head -1``) ends
 quietly with 141, as a process killed by SIGPIPE would.
+
+This module imports click and numpy only: each verb imports what it runs on (models, formats,
+checks; xarray, netCDF4, scipy through them) when it runs, so ``--help``, ``--version`` and a
+verb's ``--help`` answer in about the time of ``import numpy``. Help text that names choices
+from a registry takes them from a static copy that a test holds equal to it.
 """
 
 from __future__ import annotations
