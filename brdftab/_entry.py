@@ -1,6 +1,8 @@
 """The ``brdftab`` console entry point: signals are handled from the first instant.
 
-Importing the command line (numpy, xarray, netCDF4) takes a good part of a second; a Ctrl-C or
+The command line itself imports little (numpy, click), so ``--help`` and ``--version`` answer at
+once; a verb's modules (xarray, netCDF4, scipy, the models) take a good part of a second more
+and are imported here too, before the verb starts (:func:`brdftab.cli.preload`). A Ctrl-C or
 SIGTERM in that window used to print a traceback or end with a signal status. Here the
 handlers come first, so an interrupt during start-up ends quietly with 130 (SIGINT) or 143
 (SIGTERM), as it does once a command runs. A signal the run inherits as ignored (``SIG_IGN``:
@@ -62,7 +64,9 @@ def main():
     except ValueError:  # not the main thread
         pass
     try:
-        from .cli import main as cli_main
+        from .cli import main as cli_main, preload
+
+        preload(sys.argv[1:])  # the verb's modules (xarray, netCDF4, the models) load under these handlers
     except KeyboardInterrupt:
         _stop_starting()
     except ImportError:
@@ -74,6 +78,6 @@ def main():
         for s in previous:
             signal.signal(s, _late)
     code = cli_main(prog_name="brdftab", standalone_mode=False) or 0
-    if code in (130, 143):  # interrupted or terminated: nothing is left to do
-        _exit_now(code)
-    sys.exit(code)
+    # the run is over, whatever its code: end now (a signal during the interpreter's teardown of
+    # xarray, scipy... would otherwise kill the process by that signal after a finished run)
+    _exit_now(code)

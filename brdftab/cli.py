@@ -6,11 +6,17 @@ line ``brdftab: error: …`` on stderr and exits with code 2, never a traceback 
 before or after the verb, shows it). A refused validation exits with 1 where documented,
 SIGINT with 130, SIGTERM with 143; a closed output pipe (``brdftab models | head -1``) ends
 quietly with 141, as a process killed by SIGPIPE would.
+
+This module imports click and numpy only: each verb imports what it runs on (models, formats,
+checks; xarray, netCDF4, scipy through them) when it runs, so ``--help``, ``--version`` and a
+verb's ``--help`` answer in about the time of ``import numpy``. Help text that names choices
+from a registry takes them from a static copy that a test holds equal to it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib
 import json
 import os
 import signal
@@ -213,7 +219,29 @@ def main():
     """Tabulate, convert and validate BRDFs."""
 
 
+def _runs_on(*modules):
+    """Declare the brdftab modules a verb runs on (``.pipeline``, ...). The command line itself
+    imports none of them, so that ``--help`` and ``--version`` start at once; :func:`preload`
+    imports a verb's before the verb starts."""
+    def mark(command):
+        command.runs_on = modules
+        return command
+    return mark
+
+
+def preload(args) -> None:
+    """Import the modules the verb in ``args`` runs on (nothing for ``--help``, ``--version``
+    or no verb). The entry point calls this while its start-up signal handlers are in place:
+    a signal while xarray, netCDF4 or scipy load ends the run as one during start-up does."""
+    if any(a in ("-h", "--help", "--version") for a in args):
+        return
+    verb = next((a for a in args if not a.startswith("-")), None)
+    for module in getattr(main.commands.get(verb), "runs_on", ()):
+        importlib.import_module(module, __package__)
+
+
 # --------------------------------------------------------------------------------------------
+@_runs_on(".pipeline")
 @main.command()
 @click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
@@ -262,18 +290,24 @@ def _reports_of(result) -> list:
     return out
 
 
-def _format_names_lazy() -> str:
-    from . import formats as fm
+#: The formats brdftab reads and writes, with their extensions, as ``convert --to`` lists them:
+#: a copy of :func:`brdftab.formats.usable` kept here so that ``--help`` does not import the
+#: format modules (xarray, netCDF4, the models); a test holds it equal to the registry.
+USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("merl", (".binary",)), ("rgl", (".bsdf",)),
+                  ("exr", (".exr",)))
 
-    return ", ".join(f"{n} ({'/'.join(fm.FORMATS[n].extensions)})" for n in fm.usable())
+
+def _format_names() -> str:
+    return ", ".join(f"{n} ({'/'.join(ext)})" for n, ext in USABLE_FORMATS)
 
 
 # --------------------------------------------------------------------------------------------
+@_runs_on(".convert", ".checks")
 @main.command()
 @click.argument("source", metavar="IN", type=click.Path(dir_okay=False, path_type=Path))
 @click.argument("target", metavar="OUT", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--to", "fmt", metavar="FORMAT",
-              help="Output format (default: from OUT's extension); one of " + _format_names_lazy() + ".")
+              help="Output format (default: from OUT's extension); one of " + _format_names() + ".")
 @click.option("--grid", "grid_text", metavar="GRID",
               help="Grid to write on: a grid type ('merl', 'rusinkiewicz', ...) or a TOML inline table of [grid] "
                    "keys, e.g. '{type = \"rusinkiewicz\", n_theta_h = 45}'. Default: IN's grid (or the one the "
@@ -422,6 +456,7 @@ def _load_source(source: Path):
     return table, None
 
 
+@_runs_on(".spec", ".formats", ".geometry")
 @main.command("eval")
 @click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--wi-deg", required=True, help="Incident direction 'theta,phi' in degrees.")
@@ -476,6 +511,7 @@ def eval_(source, wi_deg, wo_deg, wavelengths, as_json):
 
 
 # --------------------------------------------------------------------------------------------
+@_runs_on(".formats")
 @main.command()
 @click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
@@ -617,6 +653,7 @@ def _parameter_lines(model, parameters, indent: int) -> list:
 
 
 # --------------------------------------------------------------------------------------------
+@_runs_on(".models", ".references")
 @main.command()
 @click.argument("name", required=False)
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
@@ -665,6 +702,7 @@ def models(name, as_json):
 
 
 # --------------------------------------------------------------------------------------------
+@_runs_on(".grids")
 @main.command()
 @click.argument("type_name", metavar="TYPE", required=False)
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
@@ -717,6 +755,7 @@ def _format_rows():
     return rows
 
 
+@_runs_on(".formats")
 @main.command("formats")
 @click.argument("name", required=False)
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
@@ -753,7 +792,7 @@ def formats_(name, as_json):
         click.echo(f"      {o['doc']}")
 
 
-main.add_command(validate)
+main.add_command(_runs_on(".pipeline", ".formats", ".checks")(validate))
 
 if __name__ == "__main__":  # pragma: no cover
     main()

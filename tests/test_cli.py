@@ -546,6 +546,116 @@ def test_help_lists_what_a_user_can_choose():
     assert "--quiet" in CliRunner().invoke(main, ["validate", "--help"]).output
 
 
+# -- start-up: help and version load nothing heavy ----------------------------------------------
+
+#: What ``--help`` and ``--version`` must not load: libraries that take a good part of a second
+#: to import, and the parts of brdftab that import them (the models, tables, formats, checks).
+HEAVY = ("xarray", "netCDF4", "h5py", "scipy", "pandas", "OpenEXR", "Imath", "matplotlib", "numba", "llvmlite",
+         "colour", "zarr", "dask", "mitsuba", "drjit",
+         "brdftab.models", "brdftab.table", "brdftab.formats", "brdftab.grids", "brdftab.checks", "brdftab.brdf",
+         "brdftab.spec", "brdftab.pipeline", "brdftab.convert", "brdftab._jit")
+
+
+def _heavy(module_names) -> list:
+    return sorted(m for m in module_names if any(m == h or m.startswith(h + ".") for h in HEAVY))
+
+
+#: Runs ``brdftab ARGS`` in-process once per argument list given as JSON in argv[1]; prints
+#: {"outputs": [stdout of each run], "codes": [...], "modules": [every module loaded], "called":
+#: [compiled kernels that ran or were loaded from the cache], "generated": [generated kernel modules]}.
+_CLI_RUNS = r"""
+import contextlib, io, json, sys
+from brdftab.cli import main
+outputs, codes = [], []
+for args in json.loads(sys.argv[1]):
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        codes.append(main(args, prog_name="brdftab", standalone_mode=False))
+    outputs.append(out.getvalue())
+called, generated = [], []
+if "numba" in sys.modules:
+    from numba.core.dispatcher import Dispatcher
+    for name, module in list(sys.modules.items()):
+        if name.startswith(("brdftab", "_brdftab_")):
+            called += [f"{name}.{k}" for k, v in vars(module).items() if isinstance(v, Dispatcher) and v.signatures]
+if "brdftab._jit" in sys.modules:
+    generated = sorted(sys.modules["brdftab._jit"]._MODULES)
+json.dump({"outputs": outputs, "codes": codes, "modules": sorted(sys.modules), "called": called,
+           "generated": generated}, sys.stdout)
+"""
+
+
+def _cli_in_fresh_process(*arg_lists) -> dict:
+    proc = subprocess.run([sys.executable, "-c", _CLI_RUNS, json.dumps([list(a) for a in arg_lists])],
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout)
+
+
+def test_help_and_version_import_nothing_heavy():
+    """``brdftab --version``, ``--help`` and every verb's ``--help`` start in about the time of a
+    bare numpy import: none of them loads xarray, netCDF4, scipy, OpenEXR, numba, the models
+    or the formats (the verbs import those when they run)."""
+    # the console entry point itself, as a user starts it: every module it imports, from -X importtime
+    for args, shows in ((["--version"], brdftab.__version__), (["convert", "--help"], "Usage: brdftab convert")):
+        proc = subprocess.run([sys.executable, "-X", "importtime", "-m", "brdftab", *args], capture_output=True,
+                              text=True, timeout=120)
+        assert proc.returncode == 0 and shows in proc.stdout, proc
+        imported = [line.rsplit("|", 1)[1].strip() for line in proc.stderr.splitlines()
+                    if line.startswith("import time:")]
+        assert "brdftab.cli" in imported and "numpy" in imported  # the listing is read right
+        assert _heavy(imported) == [], args
+    # --help and each verb's --help, with the help text they print
+    verbs = sorted(main.commands)
+    assert len(verbs) >= 8
+    done = _cli_in_fresh_process(["--help"], *[[verb, "--help"] for verb in verbs])
+    assert done["codes"] == [0] * (len(verbs) + 1)
+    assert all(text.startswith("Usage: brdftab") for text in done["outputs"])
+    assert all(verb in done["outputs"][0] for verb in verbs)
+    assert _heavy(done["modules"]) == []
+    assert _heavy(["brdftab.models.microfacet", "scipy.special", "brdftab._jit", "xarray"]) == [
+        "brdftab._jit", "brdftab.models.microfacet", "scipy.special", "xarray"]  # and it would see them
+
+
+def test_a_verb_s_modules_load_before_it_starts():
+    """The entry point imports the modules a verb runs on before the verb starts, under its
+    start-up signal handlers (:func:`brdftab.cli.preload`); never for help or version."""
+    code = ("import json, sys\nfrom brdftab.cli import preload\nloaded = []\n"
+            "for args in json.loads(sys.argv[1]):\n"
+            "    before = set(sys.modules)\n    preload(args)\n    loaded.append(sorted(set(sys.modules) - before))\n"
+            "print(json.dumps(loaded))")
+    cases = [["tabulate", "--help"], ["--debug", "validate", "-h"], ["--version", "info"], [], ["nosuch", "x"],
+             ["models"], ["--debug", "tabulate", "s.toml"]]
+    proc = subprocess.run([sys.executable, "-c", code, json.dumps(cases)], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    loaded = json.loads(proc.stdout)
+    assert loaded[:5] == [[]] * 5
+    assert "brdftab.models" in loaded[5] and "xarray" not in loaded[5]
+    assert {"brdftab.pipeline", "brdftab.formats", "brdftab.checks", "xarray", "netCDF4"} <= set(loaded[6])
+    assert all(getattr(command, "runs_on", ()) for command in main.commands.values())
+
+
+def test_convert_help_names_the_registered_formats():
+    """``convert --help`` names the formats from a static copy (so that help imports no format
+    module); the copy is the registry's list, extensions included, in its order."""
+    from brdftab import cli as cli_module, formats
+
+    assert cli_module.USABLE_FORMATS == tuple((n, formats.FORMATS[n].extensions) for n in formats.usable())
+    out = " ".join(CliRunner().invoke(main, ["convert", "--help"]).output.split())
+    for name in formats.usable():
+        assert f"{name} ({'/'.join(formats.FORMATS[name].extensions)})" in out
+
+
+def test_listing_commands_run_no_compiled_kernel():
+    """The short listing commands (models, grids, formats, checks) never compile, load or
+    generate a compiled kernel: that cost is paid by the runs that evaluate a BRDF."""
+    done = _cli_in_fresh_process(["models"], ["models", "microfacet"], ["models", "pyramid-microfacet"], ["grids"],
+                       ["grids", "merl"], ["formats"], ["formats", "rgl"], ["validate", "--list-checks"])
+    assert done["codes"] == [0] * 8 and "microfacet" in done["outputs"][0] and "energy" in done["outputs"][-1]
+    assert done["called"] == [] and done["generated"] == []
+
+
 def test_eval_of_missing_samples_exits_1_with_valid_json(tmp_path):
     g = merl_grid()
     path = tmp_path / "empty.binary"
