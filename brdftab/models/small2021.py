@@ -27,6 +27,9 @@ the offset peak (Eqs. 7–8)
     (ρs3 = 300 is a magnitude fit, not a reflectance), so it claims no energy conservation;
     for a narrow band it is close to ρs3 c √π λ cosθi / (b R) (0.0013 at 20°, 0.0007 at 60°).
 
+Each term evaluates in a compiled kernel of its own (the offset peak through the ``rotated``
+combinator's, around the peak's); the solar cell's kernel is its sum's.
+
 Conventions: brdftab's frame is the paper's. The source lies in the −x half-plane for the
 paper's geometry (φi = 180°: the in-plane forward-scatter direction is +x̂, "to the right",
 and +ŷ is out of plane, "down" in the paper's figures); Δφ0 and φ_ref are measured from +x

@@ -33,6 +33,10 @@ facet normals: N = 2π ∫₀^{π/2} exp(−c²α²) cosα sinα dα (computed b
 at construction, c in rad⁻¹ = c_per_deg · 180/π). It is usable in ``microfacet`` as any D
 (Smith Λ by quadrature of the projected-area integral, sampling by its inverse CDF); the
 ``torrance-sparrow-1967`` model uses its unnormalized exp(−c²α²) = N·D(h), as the paper does.
+Its scalar forms (``jit_D``; ``jit_lambda`` evaluates the projected-area spline from the
+coefficients in ``jit_params``) let compiled microfacet kernels compose it like any D; the
+``torrance-sparrow-1967`` model fuses exp(−c²α²), the V-groove G and its Fresnel term in one
+compiled loop of its own.
 
 The model is reciprocal (G and F(ψ′) are symmetric in ωi, ωo) and isotropic. It does not
 conserve energy in general: with Fig. 8's constants its albedo is about 1.29 ρd at every θi.
