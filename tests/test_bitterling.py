@@ -17,6 +17,7 @@ import pytest
 from brdftab import models
 from brdftab.checks import run_checks
 from brdftab.errors import ParameterError
+from brdftab.models.bitterling import alpha_of_theta
 from brdftab.spec import load_spec
 
 SPECS = Path(__file__).resolve().parent.parent / "specs"
@@ -42,6 +43,22 @@ def test_alpha_of_theta_is_the_papers_sigmoid():
     # a sigmoid decreasing from 0.42 to about 0.22 (the paper's Fig. 4 range 0.42 … 0.24)
     a = m.alpha(np.radians(np.arange(0.0, 90.5, 0.5)))
     assert np.all(np.diff(a) < 0) and a[0] < 0.43 and a[-1] > 0.22
+
+
+def test_alpha_of_theta_keeps_its_relative_accuracy_on_the_floor():
+    """Where tanh → 1, α = p1 (1 − tanh x) + p4 is evaluated without the cancellation of 1 − tanh x
+    (whose rounding, up to 2e-13 of α at p4 = 0.001, the Beckmann exponent would amplify), to a few
+    ulp of a 40-digit evaluation."""
+    import decimal
+
+    p1, p2, p3, p4 = 1.0, 100.0, 0.2, 0.001
+    theta = np.linspace(0.0, np.pi / 2, 401)
+    got = alpha_of_theta(theta, p1, p2, p3, p4)
+    with decimal.localcontext() as ctx:
+        ctx.prec = 40
+        ref = [float(decimal.Decimal(p1) * (1 - (e - 1) / (e + 1)) + decimal.Decimal(p4))
+               for e in ((2 * decimal.Decimal(p2 * (float(t) - p3))).exp() for t in theta)]
+    np.testing.assert_allclose(got, ref, rtol=1e-15, atol=0)
 
 
 def _fresnel_ref(c, n):

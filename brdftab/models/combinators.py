@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..brdf import Model
+from .._jit import kernel
+from ..brdf import HORIZON, Model
 from ..channels import combine_layouts
 from ..params import Param
 from ._registry import register
@@ -228,5 +229,54 @@ class Rotated(_OneTerm):
         """Quadrature hint: the term's lobe lives about the tilted normal (coordinates R @ w)."""
         return self.R
 
+    def _kernel(self, lam, n):
+        run = self.term.kernel(lam, n)
+        if run is None:
+            return None
+        R = np.ascontiguousarray(self.R)
+
+        def evaluate(wi, wo, state, out, add):
+            m = wi.shape[0]
+            size = min(m, ROTATE_BLOCK)
+            ri, ro, st = np.empty((size, 3)), np.empty((size, 3)), np.empty(size, np.uint8)
+            for lo in range(0, m, size):   # rotated copies of one block of rows at a time
+                hi = min(lo + size, m)
+                k = hi - lo
+                _rotate_rows(wi[lo:hi], wo[lo:hi], state[lo:hi], R, ri[:k], ro[:k], st[:k], out[lo:hi], add,
+                             HORIZON)
+                run(ri[:k], ro[:k], st[:k], out[lo:hi], add)
+        return evaluate
+
     def _eval(self, wi, wo, lam, n):
-        return self.term.eval(wi @ self.R.T, wo @ self.R.T, lam, assume_unit=True)
+        return self.term.eval(_rotate(wi, self.R), _rotate(wo, self.R), lam, assume_unit=True)
+
+
+def _rotate(w, R):
+    """``w @ R.T`` for ``w[M, 3]``, written out (the compiled kernel's arithmetic, whatever BLAS does)."""
+    out = np.empty_like(w)
+    for k in range(3):
+        out[:, k] = w[:, 0] * R[k, 0] + w[:, 1] * R[k, 1] + w[:, 2] * R[k, 2]
+    return out
+
+
+#: Rows a compiled :class:`Rotated` turns into its term's frame at once (bounded scratch memory).
+ROTATE_BLOCK = 8192
+
+
+@kernel
+def _rotate_rows(wi, wo, state, R, ri, ro, st, out, add, horizon):
+    """Directions of the evaluated rows in the term's frame (:func:`_rotate`) and their state
+    there: evaluated when both are above the term's horizon, else f = 0 (written unless ``add``)."""
+    nc = out.shape[1]
+    for i in range(wi.shape[0]):
+        st[i] = 0
+        if state[i] != 1:
+            continue
+        for k in range(3):
+            ri[i, k] = wi[i, 0] * R[k, 0] + wi[i, 1] * R[k, 1] + wi[i, 2] * R[k, 2]
+            ro[i, k] = wo[i, 0] * R[k, 0] + wo[i, 1] * R[k, 1] + wo[i, 2] * R[k, 2]
+        if ri[i, 2] > horizon and ro[i, 2] > horizon:
+            st[i] = 1
+        elif not add:
+            for c in range(nc):
+                out[i, c] = 0.0

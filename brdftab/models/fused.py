@@ -28,9 +28,13 @@ __all__ = ["microfacet_kernel", "microfacet_tabulation", "as_device"]
 
 
 def as_device(fn):
-    """The compiled (inlined) form of a component's scalar function."""
+    """The compiled (inlined) form of a component's scalar function (a :func:`~brdftab._jit.device`
+    one, a plain one, or one already compiled: a module's device functions are swapped for their
+    compiled forms when a kernel that calls them compiles)."""
     from .._jit import _Lazy, device
 
+    if not isinstance(fn, _Lazy) and hasattr(fn, "py_func"):
+        return fn
     return (fn if isinstance(fn, _Lazy) else device(fn)).compiled()
 
 

@@ -113,8 +113,8 @@ def q_unpolarized(wi, wo, n, k=0.0):
 
 
 @device
-def q_unpolarized_scalar(wix, wiy, wiz, wox, woy, woz, n, k):
-    """:func:`q_unpolarized` of one pair (the compiled kernels' form; same arithmetic)."""
+def q_sum_scalar(wix, wiy, wiz, wox, woy, woz, n, k):
+    """:func:`q_sum` of one pair (the compiled kernels' form; same arithmetic)."""
     ci, co = wiz, woz
     si = math.hypot(wix, wiy)
     so = math.hypot(wox, woy)
@@ -137,4 +137,10 @@ def q_unpolarized_scalar(wix, wiy, wiz, wox, woy, woz, n, k):
     q_pp = e1 * (eps * si * so - qs * qi * cos_phi) / (a_p_i * a_p_s)
     q_ps = -e1 * qi * sin_phi / (a_p_i * a_s_s)
     q_sp = -e1 * qs * sin_phi / (a_s_i * a_p_s)
-    return 0.5 * (abs(q_ss) ** 2 + abs(q_pp) ** 2 + abs(q_ps) ** 2 + abs(q_sp) ** 2)
+    return abs(q_ss) ** 2 + abs(q_pp) ** 2 + abs(q_ps) ** 2 + abs(q_sp) ** 2
+
+
+@device
+def q_unpolarized_scalar(wix, wiy, wiz, wox, woy, woz, n, k):
+    """:func:`q_unpolarized` of one pair (the compiled kernels' form; same arithmetic)."""
+    return 0.5 * q_sum_scalar(wix, wiy, wiz, wox, woy, woz, n, k)
