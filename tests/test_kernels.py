@@ -118,3 +118,58 @@ def test_the_kernel_cache_falls_back_when_its_folder_cannot_be_written(tmp_path,
     monkeypatch.setenv("BRDFTAB_CACHE_DIR", str(blocker / "kernels"))  # under a file: never a folder
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
     assert cache_dir() == tmp_path / "xdg" / "brdftab" / "kernels"
+
+
+# --------------------------------------------------------------------------------------------
+# zernike-expansion: the radial polynomials by the Jacobi recurrence, per block of pairs
+
+
+def _zernike(coefficients, **kw):
+    import warnings
+
+    from brdftab.errors import BrdftabWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BrdftabWarning)  # 1064 nm: clamping reported (tests/test_zernike.py)
+        return models.create("zernike-expansion", coefficients=str(coefficients), **kw)
+
+
+def test_zernike_expansion_matches_numpy(tmp_path):
+    """The shipped PTFE spec (Germer's coefficients), the synthetic file at one wavelength and
+    at several with a spectral r(λ), and a file of high orders with a term whose n < l (R = 0)."""
+    import brdftab
+
+    _assert_parity(brdftab.from_spec(ROOT / "specs" / "ptfe-zernike.toml"))
+    synthetic = ROOT / "tests" / "data" / "zernike-synthetic.coeff.csv"
+    _assert_parity(_zernike(synthetic), seed=1)
+    _assert_parity(_zernike(synthetic, scale={"wavelengths_nm": [400.0, 700.0], "values": [0.5, 1.0]}),
+                   wavelengths=[400.0, 532.0, 633.0, 700.0], seed=2)
+    rows = ["1, 1, 0, 0, 0, 0, 0, 0.3", "1, 1, 1, 3, 0, 3, 0, 0.05", "1, 1, 40, 38, 0, 2, 1, 1e-3",
+            "1, 1, 99, 97, 0, 1, 0, -2e-4"] + [f"1, 1, {n}, {n}, 0, {n}, 0, 1e-4" for n in range(2, 101, 7)]
+    high = tmp_path / "high.csv"
+    high.write_text("\n".join(rows) + "\n")
+    _assert_parity(_zernike(high), seed=3)
+
+
+def test_zernike_clamping_and_counters_match_numpy():
+    """At 1064 nm Germer's expansion is negative near grazing: the same values are clamped to 0
+    and counted, and the unclamped ``expansion`` is the same sum as ``eval`` (bit for bit)."""
+    from brdftab.brdf import numpy_reference
+    from brdftab.geometry import sph_to_vec
+
+    theta = np.radians(np.linspace(75.0, 89.99, 30))
+    t1, t2, p = np.meshgrid(theta, theta, np.linspace(0.0, np.pi, 20), indexing="ij")
+    wi, wo = sph_to_vec(t1.ravel(), 0.0), sph_to_vec(t2.ravel(), p.ravel())
+    m = _zernike(ROOT / "data" / "ptfe" / "PTFE.coeff.csv", wavelength_nm=1064.0)
+    _assert_parity(m, wi=wi, wo=wo)
+    counts = []
+    for reference in (False, True):
+        before = (m.clamped, m.evaluated)
+        if reference:
+            with numpy_reference():
+                f, raw = m.eval(wi, wo), m.expansion(wi, wo)
+        else:
+            f, raw = m.eval(wi, wo), m.expansion(wi, wo)
+        np.testing.assert_array_equal(f, np.maximum(raw, 0.0))
+        counts.append((m.clamped - before[0], m.evaluated - before[1]))
+    assert counts[0] == counts[1] and counts[0][0] > 100 and counts[0][1] == wi.shape[0], counts
