@@ -76,15 +76,18 @@ References: [He1991]; [Bitterling2024] Eqs. 8, 9, 16–18, 22–24; [Smith1967];
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.special import erf, erfc, gammaln
 
+from .._jit import device, kernel
 from ..brdf import BRDF, Model
 from ..errors import BrdftabError, ParameterError
 from ..params import Param
 from ..quadrature import gauss_legendre
-from .fresnel import INDEX_MIN, fresnel_conductor
+from .fresnel import INDEX_MIN, conductor_scalar, fresnel_conductor
 from ._registry import register
 
 __all__ = ["HeTorrance1991", "ModifiedHeTorrance", "smith_shadow", "shadow_k", "effective_roughness",
@@ -171,18 +174,23 @@ def effective_roughness(k_sum, tol: float = NEWTON_TOL, *, iterations: bool = Fa
     return (y, steps) if iterations else y
 
 
-_TABLE = {"n": 0, "lgm": np.zeros(0), "lr": np.zeros(0)}
+_TABLE = {"n": 0, "lgm": np.zeros(0), "lr": np.zeros(0), "lg1": np.zeros(0), "lm": np.zeros(0)}
 
 
-def _tables(m_max: int):
-    """ln m! + ln m and ln m − 2 ln(m + 1) for m = 0 … m_max (index m; grown on demand)."""
+def _tables(m_max: int, *, parts: bool = False):
+    """ln m! + ln m and ln m − 2 ln(m + 1) for m = 0 … m_max (index m; grown on demand); with
+    ``parts`` also ln m! and ln m apart (as :func:`_log_term` adds them)."""
     if _TABLE["n"] <= m_max:
         n = max(int(m_max) + 1, 2 * _TABLE["n"], 1024)
         m = np.arange(n, dtype=float)
         with np.errstate(divide="ignore"):
+            _TABLE["lg1"] = gammaln(m + 1.0)
+            _TABLE["lm"] = np.log(m)
             _TABLE["lgm"] = gammaln(m + 1.0) + np.log(m)
             _TABLE["lr"] = np.log(m) - 2.0 * np.log1p(m)
         _TABLE["n"] = n
+    if parts:
+        return _TABLE["lgm"], _TABLE["lr"], _TABLE["lg1"], _TABLE["lm"]
     return _TABLE["lgm"], _TABLE["lr"]
 
 
@@ -275,6 +283,278 @@ def htsg_series(g, e, tol: float = SERIES_TOL, *, terms: bool = False):
         out.ravel()[idx] = np.exp(a0) * total
         count.ravel()[idx] = n
     return (out, count) if terms else out
+
+
+# --------------------------------------------------------------------------------------------
+# Scalar forms of the building blocks above, for the compiled evaluation (:func:`_htsg_rows`):
+# the same arithmetic, the same iterations and stopping rules, one pair at a time.
+
+
+@device
+def cot_arg_scalar(cos_t, sigma0, tau):
+    """:func:`_cot_arg` of one cosine."""
+    sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
+    return tau * cos_t / (2.0 * sigma0 * sin_t) if sin_t > 0 else math.inf
+
+
+#: Largest x² for which :func:`scipy.special.erfc` (cephes) returns a non-zero erfc(x): past it,
+#: it returns 0 where the C library's erfc goes on with subnormal numbers.
+_ERFC_UNDERFLOW = 7.09782712893383996843e2
+
+
+@device
+def erfc_scalar(x):
+    """:func:`scipy.special.erfc` of one number (0 past its underflow, as there)."""
+    return 0.0 if x * x > _ERFC_UNDERFLOW else math.erfc(x)
+
+
+@device
+def smith_shadow_scalar(c, erfc_c):
+    """:func:`smith_shadow` from c = τ cotθ/(2σ0) and erfc(c)."""
+    lam = 0.0 if math.isinf(c) else 0.5 * (math.exp(-c * c) / (_SQRT_PI * c) - erfc_c)
+    s = (1.0 - 0.5 * erfc_c) / (1.0 + lam)
+    return s if c > 0 else 0.0
+
+
+@device
+def shadow_k_scalar(cos_t, erfc_c):
+    """:func:`shadow_k` from cosθ and erfc(c)."""
+    sin_t = math.sqrt(max(1.0 - cos_t * cos_t, 0.0))
+    return sin_t / cos_t * erfc_c if sin_t > 0 else 0.0
+
+
+@device
+def effective_roughness_scalar(k_sum, tol):
+    """:func:`effective_roughness` of one K_i + K_r: (y, Newton steps), steps −1 when it has not
+    converged in :data:`NEWTON_MAX_ITER` steps."""
+    if not k_sum > 0:
+        return 0.0, 0
+    if math.isinf(k_sum):
+        return math.inf, 0
+    big_l = 2.0 * math.log(k_sum / (4.0 * _SQRT_HALF_PI))
+    u = big_l if big_l < 1.0 else math.log(max(big_l, 1.0))
+    steps = 0
+    while True:
+        if steps >= NEWTON_MAX_ITER:
+            return math.nan, -1
+        eu = math.exp(u)
+        du = (eu + u - big_l) / (eu + 1.0)
+        ua = u
+        u = ua - du
+        steps += 1
+        if abs(du) <= tol * max(1.0, abs(ua)):
+            return math.exp(u), steps
+
+
+@device
+def _log_ratio_scalar(m, lg, e):
+    """:func:`_log_ratio` of one m."""
+    return lg + math.log(m) - 2.0 * math.log1p(m) + e / (m * (m + 1.0))
+
+
+@device
+def _round_half_even(x):
+    r = math.floor(x + 0.5)
+    if r - x == 0.5 and r % 2.0 == 1.0:
+        r -= 1.0
+    return r
+
+
+#: Width in ln m of the interval the 26 bisection steps of :func:`_series_peak` end on, per unit
+#: of the starting width ln(hi).
+_BISECTION_WIDTH = 2.0 ** -26
+
+
+@device
+def series_peak_scalar(lg, g, e):
+    """:func:`_series_peak` of one (ln g, g, E), with the same result. The bisection there ends
+    on ln m_hi ∈ [u*, u* + ln(hi)/2²⁶] (u* = ln m*, the root of the log ratio) and rounds
+    m_hi: here u* is found by a safeguarded Newton's method (a few steps instead of 26), and
+    when [m*, m* e^{ln(hi)/2²⁶}] (widened by 1e-9) holds no half-integer, round(m*) is that
+    result; otherwise (a chance of about m*·2e-7) the bisection itself runs."""
+    if not _log_ratio_scalar(1.0, lg, e) > 0:
+        return 1.0
+    hi = 3.0 * max(g, 1.0) + 2.0 * math.sqrt(e) + 2.0
+    hl = math.log(hi)
+    a = 0.0  # log ratio > 0
+    b = hl  # log ratio < 0
+    u = min(max(math.log(max(g, math.sqrt(e), 1.0)), 0.25 * hl), 0.75 * hl)
+    m = math.exp(u)
+    for _ in range(60):
+        f = lg + u - 2.0 * math.log(1.0 + m) + e / (m * (m + 1.0))
+        if f > 0:
+            a = u
+        else:
+            b = u
+        df = (1.0 - m) / (1.0 + m) - e * (2.0 * m + 1.0) / (m * (m + 1.0) * (m + 1.0))
+        step = f / df if df < 0 else 0.0
+        if df < 0 and abs(step) <= 1e-12 * max(1.0, abs(u)):  # converged: the next step is ~1e-24
+            u = u - step
+            m = math.exp(u)
+            break
+        un = u - step
+        if not (df < 0 and a < un < b):
+            un = 0.5 * (a + b)
+        u = un
+        m = math.exp(u)
+        if b - a <= 1e-12:
+            break
+    lo_m = m * (1.0 - 1e-9)
+    hi_m = m * math.exp(hl * _BISECTION_WIDTH) * (1.0 + 1e-9)
+    k = math.floor(lo_m + 0.5)
+    if k + 0.5 > hi_m:  # no half-integer in [lo_m, hi_m]
+        return max(1.0, k)
+    lo_l = 0.0
+    hi_l = hl
+    for _ in range(26):
+        mid = 0.5 * (lo_l + hi_l)
+        if _log_ratio_scalar(math.exp(mid), lg, e) > 0:
+            lo_l = mid
+        else:
+            hi_l = mid
+    return max(1.0, _round_half_even(math.exp(hi_l)))
+
+
+@device
+def htsg_series_scalar(g, e, tol, lgm, lr, lg1, lm):
+    """:func:`htsg_series` of one (g, E), with the tables of :func:`_tables` (``parts``): the
+    peak, then the walks up and down with the same geometric stopping rule. NaN when a walk
+    would run past the tables (their length is chosen so that it cannot)."""
+    e = max(e, 0.0)
+    if not g > 0:
+        return 0.0
+    lg = math.log(g)
+    peak = series_peak_scalar(lg, g, e)
+    ip = int(peak)
+    a0 = peak * lg - g - lg1[ip] - lm[ip] - e / peak
+    total = 1.0
+    last = lgm.size - 2
+    # each term t_m = exp(m ln g − g − ln m! − ln m − E/m − a0) as there; the stopping rule's
+    # ratio q is taken as t_{m±1}/t_m (one exponential per term), not exp of ln r: the two
+    # differ in the last digits, which could change where a walk stops only when it is within
+    # rounding of the threshold, and then by a term below the tolerance
+    m = peak + 1.0
+    if int(m) > last:
+        return math.nan
+    t = math.exp(m * lg - g - lgm[int(m)] - e / m - a0)
+    while True:  # upward: q = t_{m+1}/t_m = r(m)
+        mi = int(m)
+        if mi > last:
+            return math.nan
+        total = total + t
+        mn = m + 1.0
+        tn = math.exp(mn * lg - g - lgm[mi + 1] - e / mn - a0)
+        q = tn / t if t > 0 else math.exp(lg + lr[mi] + e / (m * (m + 1.0)))
+        if q < 1.0 and t * q <= tol * total * (1.0 - min(q, 1.0)):
+            break
+        m = mn
+        t = tn
+    m = peak - 1.0
+    if m >= 1.0:
+        t = math.exp(m * lg - g - lgm[int(m)] - e / m - a0)
+    while m >= 1.0:  # downward: q = t_{m−1}/t_m = 1/r(m − 1)
+        total = total + t
+        if m - 1.0 < 1.0:
+            break
+        mm = m - 1.0
+        tn = math.exp(mm * lg - g - lgm[int(mm)] - e / mm - a0)
+        q = tn / t if t > 0 else math.exp(-(lg + lr[int(mm)] + e / (mm * (mm + 1.0))))
+        if q < 1.0 and t * q <= tol * total * (1.0 - min(q, 1.0)):
+            break
+        m = mm
+        t = tn
+    return math.exp(a0) * total
+
+
+@device
+def _spline_scalar(x, c, t):
+    """A scipy ``PPoly`` (breakpoints ``x``, coefficients ``c[4, len(x) − 1]``) at ``t`` within
+    [x[0], x[−1]], summed as scipy sums it (lowest power first)."""
+    lo = 0
+    hi = x.size - 1
+    while hi - lo > 1:  # x[lo] <= t < x[hi]
+        mid = (lo + hi) // 2
+        if t >= x[mid]:
+            lo = mid
+        else:
+            hi = mid
+    d = t - x[lo]
+    res = 0.0
+    z = 1.0
+    k = c.shape[0]
+    for kp in range(k):
+        res = res + c[k - kp - 1, lo] * z
+        z *= d
+    return res
+
+
+#: :func:`_htsg_rows` variants: ρ_dd (and R_dh,Lam/π) only, plus the cone, plus the Gaussian profile.
+_DIFFUSE, _CONE, _PROFILE = 0, 1, 2
+
+
+@kernel
+def _htsg_rows(wi, wo, state, out, add, variant, p, per_lam, spline_x, spline_c, lgm, lr, lg1, lm):
+    """The compiled evaluation of both HTSG models, the arithmetic of their numpy code
+    (:class:`_Pair`, :meth:`_HTSGBase._diffuse_parts`, :meth:`HeTorrance1991._cone`,
+    :meth:`ModifiedHeTorrance._specular`) pair by pair: writes (``add``: adds) f into the rows of
+    ``out`` whose ``state`` is 1. ``p`` = [σ0, τ, n, k, R_dh,Lam/π, cos w, dω_i, w_φ, w_θ,
+    Newton tolerance, series tolerance]; ``per_lam[c]`` = [(kσ0)², ¼(τk)², π²τ²/(4λ²)] per
+    wavelength (k = 2π/λ); ``spline_x``, ``spline_c``: the profile's solid angle dω_i,g(θi).
+    Returns 0, or 1 when Newton's method did not converge, 2 when a series ran past the tables."""
+    sigma0, tau, n_re, k_im, rdh = p[0], p[1], p[2], p[3], p[4]
+    cone_cos, cone_sa, w_phi, w_theta, newton_tol, series_tol = p[5], p[6], p[7], p[8], p[9], p[10]
+    nc = out.shape[1]
+    status = 0
+    for i in range(wi.shape[0]):
+        if state[i] != 1:
+            continue
+        ci = wi[i, 2]
+        co = wo[i, 2]
+        vx = wi[i, 0] + wo[i, 0]
+        vy = wi[i, 1] + wo[i, 1]
+        vz = ci + co
+        vv = vx * vx + vy * vy + vz * vz
+        vxy2 = vx * vx + vy * vy
+        cos_loc = 0.5 * math.sqrt(vv)
+        c_i = cot_arg_scalar(ci, sigma0, tau)
+        c_o = cot_arg_scalar(co, sigma0, tau)
+        erfc_i = erfc_scalar(c_i)
+        erfc_o = erfc_scalar(c_o)
+        shadow = smith_shadow_scalar(c_i, erfc_i) * smith_shadow_scalar(c_o, erfc_o)
+        y, steps = effective_roughness_scalar(shadow_k_scalar(ci, erfc_i) + shadow_k_scalar(co, erfc_o), newton_tol)
+        if steps < 0:
+            status = 1
+        ratio2 = 1.0 / (1.0 + y)
+        fresnel = conductor_scalar(cos_loc, n_re, k_im)
+        sq = vv / vz
+        base = fresnel / np.pi * (sq * sq) * shadow / (ci * co)
+        inside = False
+        lobe = 0.0
+        if variant == _CONE:
+            inside = -wi[i, 0] * wo[i, 0] - wi[i, 1] * wo[i, 1] + ci * co >= cone_cos
+            lobe = fresnel * shadow / (ci * cone_sa)
+        elif variant == _PROFILE:
+            inside = True
+            ti = math.atan2(math.hypot(wi[i, 0], wi[i, 1]), ci)
+            to = math.atan2(math.hypot(wo[i, 0], wo[i, 1]), co)
+            dphi = math.atan2(wo[i, 1], wo[i, 0]) - math.atan2(wi[i, 1], wi[i, 0]) - np.pi
+            dphi = np.pi - (np.pi - dphi) % (2.0 * np.pi)
+            a = dphi / (2.0 * w_phi)
+            b = (to - ti) / (2.0 * w_theta)
+            profile = math.exp(-(a * a)) * math.exp(-(b * b))
+            lobe = fresnel * profile / (cos_loc * _spline_scalar(spline_x, spline_c, min(max(ti, 0.0), 0.5 * np.pi)))
+        for c in range(nc):
+            g = per_lam[c, 0] * ratio2 * vz * vz
+            series = htsg_series_scalar(g, per_lam[c, 1] * vxy2, series_tol, lgm, lr, lg1, lm)
+            if math.isnan(series) and not math.isnan(g):
+                status = 2
+            v = base * per_lam[c, 2] * series
+            if rdh != 0.0:
+                v = v + rdh
+            if inside:
+                v = v + lobe * math.exp(-g)
+            out[i, c] = out[i, c] + v if add else v
+    return status
 
 
 def _fresnel(cos_t, n, k):
@@ -370,6 +650,38 @@ class _HTSGBase(Model):
     def _pair(self, wi, wo):
         """Quantities of a direction pair shared by ρ_dd and the specular parts."""
         return _Pair(self, wi, wo)
+
+    def _kernel(self, lam, n):
+        """The compiled evaluation (:func:`_htsg_rows`): per-wavelength constants and the
+        series' tables set up here, once."""
+        lams = self._lams_um(lam)
+        per_lam = np.empty((lams.size, 3))
+        for j, lam_um in enumerate(lams):  # as in _g, _directional_diffuse
+            kk = 2.0 * np.pi / lam_um
+            per_lam[j] = ((kk * self.sigma0) ** 2, 0.25 * (self.tau * kk) ** 2,
+                          np.pi ** 2 * self.tau ** 2 / (4.0 * lam_um ** 2))
+        # the series' terms: the peak is below 3 max(g, 1) + 2√E + 2, past which the term ratio
+        # is below 0.43, so a walk stops within 35 terms of it (g ≤ 4(kσ0)², E ≤ (τk)²)
+        g_max, e_max = 4.0 * float(per_lam[:, 0].max()), 4.0 * float(per_lam[:, 1].max())
+        tables = tuple(np.ascontiguousarray(t) for t in _tables(int(3.0 * max(g_max, 1.0) + 2.0 * np.sqrt(e_max))
+                                                                 + 64, parts=True))
+        variant, extra, spline_x, spline_c = self._kernel_part()
+        p = np.array([self.sigma0, self.tau, self.n, self.k, self.r_dh_lam / np.pi if self.r_dh_lam else 0.0,
+                      *extra, NEWTON_TOL, SERIES_TOL], float)
+
+        def evaluate(wi, wo, state, out, add):
+            status = _htsg_rows(wi, wo, state, out, add, variant, p, per_lam, spline_x, spline_c, *tables)
+            if status == 1:
+                raise BrdftabError(f"the effective-roughness equation did not converge in {NEWTON_MAX_ITER} "
+                                   "Newton steps")
+            if status == 2:
+                raise BrdftabError("the HTSG series ran past its tables")
+        return evaluate
+
+    def _kernel_part(self):
+        """The specular part of :func:`_htsg_rows`: (variant, [cos w, dω_i, w_φ, w_θ], spline
+        breakpoints, spline coefficients)."""
+        raise NotImplementedError
 
     def _directional_diffuse(self, wi, wo, lam, n, pair=None):
         """ρ_dd [sr⁻¹], shape (M, n)."""
@@ -485,6 +797,12 @@ class HeTorrance1991(_HTSGBase):
 
     # -- the cone variant -----------------------------------------------------------------------
 
+    def _kernel_part(self):
+        none = (np.zeros(2), np.zeros((4, 1)))
+        if self.cone_half_width is None:
+            return _DIFFUSE, (1.0, 1.0, 1.0, 1.0), *none
+        return _CONE, (self.cone_cos, self.cone_solid_angle, 1.0, 1.0), *none
+
     def _cone(self, wi, wo, lam, n, pair=None):
         """Bitterling's Eq. 17 inside the cone of half-width w about the mirror direction."""
         out = np.zeros((wi.shape[0], n))
@@ -584,6 +902,11 @@ class ModifiedHeTorrance(_HTSGBase):
             nodes = np.linspace(0.0, 0.5 * np.pi, int(np.ceil(0.5 * np.pi / step)) + 1)
             self._spline = CubicSpline(nodes, self._phi_integral * _theta_integral(nodes, self.width_theta))
         return self._spline(np.clip(np.asarray(theta_i, float), 0.0, 0.5 * np.pi))
+
+    def _kernel_part(self):
+        self.solid_angle(0.0)  # builds the spline
+        return (_PROFILE, (1.0, 1.0, self.width_phi, self.width_theta), np.ascontiguousarray(self._spline.x),
+                np.ascontiguousarray(self._spline.c))
 
     def _specular(self, wi, wo, lam, n, pair=None):
         """f_sp,mod = |F(θm)|² e^{−g} Γ / (cosθm dω_i,g(θi)) (Eq. 24), g at the local half-vector
