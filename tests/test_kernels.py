@@ -198,6 +198,22 @@ def test_he_torrance_matches_numpy(surface):
                                  **p), wavelengths=[p["wavelength_nm"], 650.0, 900.0], seed=7)
 
 
+def test_series_peak_equals_the_bisection():
+    """The compiled series starts at the same term as the numpy one: its root-then-round peak
+    equals _series_peak's bisection, also where the root sits on a half-integer (e = 0,
+    g = (k + 3/2)²/(k + 1/2): m* = k + 1/2, where the rounding is decided by the bisection)."""
+    from brdftab.models import he_torrance as H
+
+    rng = np.random.default_rng(11)
+    k = np.arange(1.0, 400.0)
+    g = np.concatenate([10 ** rng.uniform(-3, 4, 4000), (k + 1.5) ** 2 / (k + 0.5), (k + 1.5) ** 2 / (k + 0.5)])
+    e = np.concatenate([10 ** rng.uniform(-3, 5, 4000), np.zeros(k.size), np.full(k.size, 1e-9)])
+    lg = np.log(g)
+    want = H._series_peak(lg, g, e)
+    got = np.array([H.series_peak_scalar(a, b, c) for a, b, c in zip(lg, g, e)])
+    np.testing.assert_array_equal(got, want)
+
+
 def test_he_torrance_shipped_specs_match_numpy():
     import brdftab
 
