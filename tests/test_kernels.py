@@ -250,3 +250,13 @@ def test_he_torrance_at_large_g_matches_numpy_as_far_as_numpy_itself_is_defined(
     g = np.linspace(2800.0, 3600.0, 41)
     moved = np.abs(H.htsg_series(np.nextafter(g, np.inf), 100.0) / H.htsg_series(g, 100.0) - 1.0)
     assert moved.max() > 4e-12, moved.max()
+
+
+def test_he_torrance_quadrature_parts_match_numpy():
+    """The albedo integrals evaluate the specular lobe and the diffuse parts apart
+    (``quadrature_parts``): each part has the compiled evaluation too."""
+    p = _HTSG["pyromark"]
+    for m in (models.create("he-torrance-1991", cone_half_width=np.radians(4.5), **p),
+              models.create("he-torrance-modified", width_theta=np.radians(14.9), width_phi=np.radians(3.2), **p)):
+        for k, part in enumerate(m.quadrature_parts()):
+            _assert_parity(part, seed=12 + k)

@@ -541,11 +541,14 @@ def _htsg_rows(wi, wo, state, out, add, variant, p, per_lam, spline_x, spline_c,
     (:class:`_Pair`, :meth:`_HTSGBase._diffuse_parts`, :meth:`HeTorrance1991._cone`,
     :meth:`ModifiedHeTorrance._specular`) pair by pair: writes (``add``: adds) f into the rows of
     ``out`` whose ``state`` is 1. ``p`` = [σ0, τ, n, k, R_dh,Lam/π, cos w, dω_i, w_φ, w_θ,
-    Newton tolerance, series tolerance]; ``per_lam[c]`` = [(kσ0)², ¼(τk)², π²τ²/(4λ²)] per
+    Newton tolerance, series tolerance, with the diffuse parts (1/0), with the specular part];
+    ``per_lam[c]`` = [(kσ0)², ¼(τk)², π²τ²/(4λ²)] per
     wavelength (k = 2π/λ); ``spline_x``, ``spline_c``: the profile's solid angle dω_i,g(θi).
     Returns 0, or 1 when Newton's method did not converge, 2 when a series ran past the tables."""
     sigma0, tau, n_re, k_im, rdh = p[0], p[1], p[2], p[3], p[4]
     cone_cos, cone_sa, w_phi, w_theta, newton_tol, series_tol = p[5], p[6], p[7], p[8], p[9], p[10]
+    with_diffuse = p[11] != 0.0
+    with_lobe = p[12] != 0.0
     nc = out.shape[1]
     status = 0
     buf = np.empty(SERIES_BATCH)
@@ -574,7 +577,9 @@ def _htsg_rows(wi, wo, state, out, add, variant, p, per_lam, spline_x, spline_c,
         base = fresnel / np.pi * (sq * sq) * shadow / (ci * co)
         inside = False
         lobe = 0.0
-        if variant == _CONE:
+        if not with_lobe:
+            pass
+        elif variant == _CONE:
             inside = -wi[i, 0] * wo[i, 0] - wi[i, 1] * wo[i, 1] + ci * co >= cone_cos
             lobe = fresnel * shadow / (ci * cone_sa)
         elif variant == _PROFILE:
@@ -589,12 +594,14 @@ def _htsg_rows(wi, wo, state, out, add, variant, p, per_lam, spline_x, spline_c,
             lobe = fresnel * profile / (cos_loc * _spline_scalar(spline_x, spline_c, min(max(ti, 0.0), 0.5 * np.pi)))
         for c in range(nc):
             g = per_lam[c, 0] * ratio2 * vz * vz
-            series = htsg_series_scalar(g, per_lam[c, 1] * vxy2, series_tol, lgm, lr, lg1, lm, buf)
-            if math.isnan(series) and not math.isnan(g):
-                status = 2
-            v = base * per_lam[c, 2] * series
-            if rdh != 0.0:
-                v = v + rdh
+            v = 0.0
+            if with_diffuse:
+                series = htsg_series_scalar(g, per_lam[c, 1] * vxy2, series_tol, lgm, lr, lg1, lm, buf)
+                if math.isnan(series) and not math.isnan(g):
+                    status = 2
+                v = base * per_lam[c, 2] * series
+                if rdh != 0.0:
+                    v = v + rdh
             if inside:
                 v = v + lobe * math.exp(-g)
             out[i, c] = out[i, c] + v if add else v
@@ -662,14 +669,20 @@ def _common_params(wavelength_default: float):
 class _Part(BRDF):
     """One additive part of a model (for :meth:`quadrature_parts`): evaluates ``fn``."""
 
-    def __init__(self, owner, fn, name, rule=None, reciprocal=True):
+    def __init__(self, owner, fn, name, rule=None, reciprocal=True, part=None):
         self.name = f"{owner.name}:{name}"
         self.layout = owner.layout
         self.isotropic = owner.isotropic
         self.reciprocal = reciprocal
         self._fn = fn
+        self._owner = owner
+        self._part = part
         if rule is not None:
             self.albedo_rule = rule
+
+    def _kernel(self, lam, n):
+        """The owner's compiled evaluation of this part alone (``part`` "diffuse" or "specular")."""
+        return None if self._part is None else self._owner._kernel(lam, n, part=self._part)
 
     def _eval(self, wi, wo, lam, n):
         return self._fn(wi, wo, lam, n)
@@ -723,9 +736,10 @@ class _HTSGBase(Model):
         """Quantities of a direction pair shared by ρ_dd and the specular parts."""
         return _Pair(self, wi, wo)
 
-    def _kernel(self, lam, n):
+    def _kernel(self, lam, n, part=None):
         """The compiled evaluation (:func:`_htsg_rows`): per-wavelength constants and the
-        series' tables set up here, once."""
+        series' tables set up here, once. ``part`` "diffuse" or "specular": that part alone
+        (:meth:`quadrature_parts`)."""
         lams = self._lams_um(lam)
         per_lam = np.empty((lams.size, 3))
         for j, lam_um in enumerate(lams):  # as in _g, _directional_diffuse
@@ -739,7 +753,7 @@ class _HTSGBase(Model):
                                                                  + 64 + SERIES_BATCH, parts=True))
         variant, extra, spline_x, spline_c = self._kernel_part()
         p = np.array([self.sigma0, self.tau, self.n, self.k, self.r_dh_lam / np.pi if self.r_dh_lam else 0.0,
-                      *extra, NEWTON_TOL, SERIES_TOL], float)
+                      *extra, NEWTON_TOL, SERIES_TOL, part != "specular", part != "diffuse"], float)
 
         run = _htsg_kernel()
 
@@ -912,8 +926,8 @@ class HeTorrance1991(_HTSGBase):
         the delta variant (one smooth part; its delta is :attr:`specular_delta`)."""
         if self.cone_half_width is None:
             return None
-        return [_Part(self, self._cone, "specular cone", rule=self._cone_rule, reciprocal=False),
-                _Part(self, self._diffuse_parts, "diffuse")]
+        return [_Part(self, self._cone, "specular cone", rule=self._cone_rule, reciprocal=False, part="specular"),
+                _Part(self, self._diffuse_parts, "diffuse", part="diffuse")]
 
     def _eval(self, wi, wo, lam, n):
         pair = self._pair(wi, wo)
@@ -1012,8 +1026,9 @@ class ModifiedHeTorrance(_HTSGBase):
         return wo[keep], w[keep]
 
     def quadrature_parts(self):
-        return [_Part(self, self._specular, "specular profile", rule=self._profile_rule, reciprocal=False),
-                _Part(self, self._diffuse_parts, "diffuse")]
+        return [_Part(self, self._specular, "specular profile", rule=self._profile_rule, reciprocal=False,
+                      part="specular"),
+                _Part(self, self._diffuse_parts, "diffuse", part="diffuse")]
 
     def _eval(self, wi, wo, lam, n):
         pair = self._pair(wi, wo)
