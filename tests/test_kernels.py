@@ -260,3 +260,11 @@ def test_he_torrance_quadrature_parts_match_numpy():
               models.create("he-torrance-modified", width_theta=np.radians(14.9), width_phi=np.radians(3.2), **p)):
         for k, part in enumerate(m.quadrature_parts()):
             _assert_parity(part, seed=12 + k)
+
+
+def test_zernike_and_he_torrance_add_into_a_sum():
+    """Inside a sum the kernels add to what the earlier terms wrote (their ``add`` mode)."""
+    zernike = _zernike(ROOT / "tests" / "data" / "zernike-synthetic.coeff.csv")
+    ht = models.create("he-torrance-1991", cone_half_width=np.radians(4.5), **_HTSG["pyromark"])
+    white = models.create("lambert", albedo=0.3)
+    _assert_parity(models.create("sum", terms=[white, zernike, ht]), seed=14)
