@@ -8,13 +8,14 @@ At random upper-hemisphere pairs, in one run: the numpy floor ``h = normalize(wi
 then for ``he-torrance-1991`` (the Pyromark spec, cone), ``he-torrance-modified`` (its spec),
 ``zernike-expansion`` (the shipped PTFE spec and the synthetic test file) the rate of
 ``model.eval`` inside :func:`brdftab.brdf.numpy_reference` and compiled, in million pairs per
-second, and the compiled time as a multiple of the floor's (minimum of the repeats: the
-machine may be shared).
+second, and the compiled time as a multiple of the floor's: the median over rounds that
+alternate the floor and the model (the machine may be shared).
 """
 
 from __future__ import annotations
 
 import argparse
+import statistics
 import time
 from pathlib import Path
 
@@ -38,7 +39,8 @@ def best(fn, repeat):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pairs", type=int, default=150000)
-    ap.add_argument("--repeat", type=int, default=9)
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--rounds", type=int, default=5)
     args = ap.parse_args(argv)
     rng = np.random.default_rng(1)
 
@@ -54,7 +56,8 @@ def main(argv=None):
         h = wi + wo
         return h / np.linalg.norm(h, axis=1, keepdims=True)
 
-    cases = [("he-torrance-1991, pyromark-he-torrance.toml", brdftab.from_spec(ROOT / "specs" / "pyromark-he-torrance.toml")),
+    cases = [("he-torrance-1991, pyromark-he-torrance.toml",
+              brdftab.from_spec(ROOT / "specs" / "pyromark-he-torrance.toml")),
              ("he-torrance-modified, pyromark-modified-ht.toml",
               brdftab.from_spec(ROOT / "specs" / "pyromark-modified-ht.toml")),
              ("zernike-expansion, ptfe-zernike.toml", brdftab.from_spec(ROOT / "specs" / "ptfe-zernike.toml")),
@@ -63,17 +66,22 @@ def main(argv=None):
                                     coefficients=str(ROOT / "tests" / "data" / "zernike-synthetic.coeff.csv")))]
     for _, m in cases:
         m.eval(wi[:1000], wo[:1000])  # compiles, or loads the compiled kernel from the cache
-    t_floor = best(floor, 3 * args.repeat)
-    print(f"{n:,} pairs, minimum of {args.repeat} runs")
+    print(f"{n:,} pairs; each figure the median of {args.rounds} rounds, a round alternating the floor and the "
+          f"model (best of {args.repeat} runs each)")
+    floors = []
     for label, m in cases:
         with numpy_reference():
-            t_np = best(lambda: m.eval(wi, wo), max(2, args.repeat // 3))
-        t_c = best(lambda: m.eval(wi, wo), args.repeat)
-        t_floor = min(t_floor, best(floor, args.repeat))
-        print(f"{label:<48s} numpy {n / t_np / 1e6:7.3f}  compiled {n / t_c / 1e6:7.3f} M pairs/s  "
-              f"(x{t_np / t_c:5.1f});  compiled time = {t_c / t_floor:5.2f} x floor")
-    print(f"numpy floor h = normalize(wi + wo): {n / t_floor / 1e6:.1f} M pairs/s")
-
+            t_np = best(lambda m=m: m.eval(wi, wo), 2)
+        rates, ratios = [], []
+        for _ in range(args.rounds):
+            t_floor = best(floor, args.repeat)
+            t_c = best(lambda m=m: m.eval(wi, wo), args.repeat)
+            floors.append(n / t_floor / 1e6)
+            rates.append(n / t_c / 1e6)
+            ratios.append(t_c / t_floor)
+        print(f"{label:<48s} numpy {n / t_np / 1e6:7.3f}  compiled {statistics.median(rates):7.3f} M pairs/s;  "
+              f"compiled time = {statistics.median(ratios):5.2f} x floor")
+    print(f"numpy floor h = normalize(wi + wo): {statistics.median(floors):.1f} M pairs/s (median)")
 
 if __name__ == "__main__":
     main()
