@@ -172,20 +172,23 @@ source 45° above the surface in the azimuth 25° from a face normal's.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import erf, erfc
 
+from .._jit import device, kernel
 from ..brdf import BRDF, Model
 from ..errors import ParameterError
 from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from . import pyramid_walk
+from .pyramid_walk import ratio_one
 from ._registry import register
 from .combinators import Sum
-from .distributions import d_beckmann
+from .distributions import beckmann_D_scalar, d_beckmann
 from .microfacet import ComposedParams
 
 __all__ = ["THETA_P", "FACET_WEIGHT", "facet_normals", "visible_area", "PyramidDistribution", "PyramidShadowing",
@@ -229,6 +232,10 @@ def visible_area(c, alpha):
     c = np.asarray(c, float)
     shape = c.shape
     c = c.reshape(-1)
+    if pyramid_walk.compiled():
+        out = np.empty(c.shape)
+        _visible_area_rows(np.ascontiguousarray(c), float(alpha), out)
+        return out.reshape(shape)
     out = np.maximum(c, 0.0)
     s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
     near = np.abs(c) < 6.0 * alpha * s
@@ -237,6 +244,23 @@ def visible_area(c, alpha):
         a = cn / (alpha * sn)
         out[near] = 0.5 * cn * (1.0 + erf(a)) + alpha * sn * np.exp(-a * a) / (2.0 * _SQRT_PI)
     return out.reshape(shape)
+
+
+@device
+def _visible_area1(c, alpha):
+    """:func:`visible_area` of one cosine."""
+    out = c if not c < 0.0 else 0.0
+    s = math.sqrt(max(1.0 - c * c, 0.0))
+    if abs(c) < 6.0 * alpha * s:
+        a = c / (alpha * s)
+        out = 0.5 * c * (1.0 + math.erf(a)) + alpha * s * math.exp(-a * a) / (2.0 * _SQRT_PI)
+    return out
+
+
+@kernel
+def _visible_area_rows(c, alpha, out):
+    for i in range(c.shape[0]):
+        out[i] = _visible_area1(c[i], alpha)
 
 
 def _lobe(cos_rho, beta):
@@ -484,6 +508,142 @@ def _facet_rule(dist, wi, k, level):
         o, wo, w, c = _facet_nodes(dist, wi[idx], k[idx], p, r, lo, hi, n_cut, nodes)
         parts.append((idx[o], wo, w, c))
     return tuple(np.concatenate([q[j] for q in parts]) for j in range(4))
+
+
+# The compiled facet-lobe rule: _facet_rays, _facet_nodes and SingleBounce.own_facet fused, one
+# (incidence, facet) pair at a time, summing the nodes in the order numpy's bincount does.
+
+#: Forms of G in the compiled facet energies: the traced walk's, height-correlated, uncorrelated.
+_G_TRACED, _G_CORRELATED, _G_UNCORRELATED = 0, 1, 2
+
+
+@device
+def _projected_area1(wx, wy, wz, normals, alpha):
+    """:meth:`PyramidDistribution.projected_area` of one direction."""
+    tot = 0.0
+    for j in range(4):
+        tot += FACET_WEIGHT * _visible_area1(wx * normals[j, 0] + wy * normals[j, 1] + wz * normals[j, 2], alpha)
+    return tot
+
+
+@device
+def _root_or(r, top):
+    return r if (math.isfinite(r) and r > 0.0 and r < top) else top
+
+
+@device
+def _ray_roots(wi, fr, a, psi, cf, c1, c2, top, roots):
+    """The cuts of one ray of :func:`_facet_rays` into ``roots[4]``; returns (q0, q1, q2, ⟨ωi, v⟩,
+    v_z)."""
+    cv = math.cos(psi) * c1 + math.sin(psi) * c2
+    fz = fr[2, 2]
+    vz = math.cos(psi) * fr[0, 2]
+    iz = wi[2]
+    q0 = 2.0 * cf * fz - iz
+    q1 = 2.0 * a * (cf * vz + cv * fz)
+    q2 = a * a * (2.0 * cv * vz - iz)
+    disc = math.sqrt(q1 * q1 - 4.0 * q0 * q2) if q1 * q1 - 4.0 * q0 * q2 >= 0.0 else math.nan
+    roots[0] = _root_or(-cf / (a * cv), top)
+    roots[1] = _root_or(-fz / (a * vz), top)
+    roots[2] = _root_or((-q1 - disc) / (2.0 * q2), top)
+    roots[3] = _root_or((-q1 + disc) / (2.0 * q2), top)
+    return q0, q1, q2, cv, vz
+
+
+@kernel
+def _facet_energy_rows(wi, kk, lam_i, r_i, frames, normals, alpha, g_form, n_whole, n_cut, gx, gw, t_edges,
+                       rot_c, rot_s, theta, phi, esc_perm, flat, out):
+    """``out[P]``: :meth:`SingleBounce.facet_energy` (grey) of the pairs (``wi[P, 3]``, facet
+    ``kk[P]``) given Λ(ωi) ``lam_i[P]`` and, for the traced G, r_k(ωi) ``r_i[P]``; the rule of
+    :func:`_facet_rule` (``n_whole``/``n_cut`` azimuths, Gauss–Legendre ``gx``, ``gw`` on [0, 1],
+    panel edges ``t_edges``), the walk table's escape parts for r_k(ωo)."""
+    a = alpha
+    ne = t_edges.shape[0]
+    top = t_edges[ne - 1]
+    roots = np.empty(4)
+    edges = np.empty(ne + 4)
+    for p in range(wi.shape[0]):
+        k = kk[p]
+        fr = frames[k]
+        w = wi[p]
+        cf = w[0] * fr[2, 0] + w[1] * fr[2, 1] + w[2] * fr[2, 2]
+        c1 = w[0] * fr[0, 0] + w[1] * fr[0, 1] + w[2] * fr[0, 2]
+        c2 = w[0] * fr[1, 0] + w[1] * fr[1, 1] + w[2] * fr[1, 2]
+        n_psi = n_whole
+        for r in range(n_whole):
+            psi = 2.0 * np.pi * (r + 0.5) / n_whole
+            _ray_roots(w, fr, a, psi, cf, c1, c2, top, roots)
+            if roots[0] < top or roots[2] < top or roots[3] < top:
+                n_psi = n_cut
+                break
+        g1i = 1.0 / (1.0 + lam_i[p])
+        acc = 0.0
+        for r in range(n_psi):
+            psi = 2.0 * np.pi * (r + 0.5) / n_psi
+            q0, q1, q2, cv, vz = _ray_roots(w, fr, a, psi, cf, c1, c2, top, roots)
+            for j in range(ne):
+                edges[j] = t_edges[j]
+            for j in range(4):
+                edges[ne + j] = roots[j]
+            edges.sort()
+            cp, sp = math.cos(psi), math.sin(psi)
+            for j in range(ne + 3):
+                lo, hi = edges[j], edges[j + 1]
+                mid = 0.5 * (lo + hi)
+                if not (hi > lo and cf + a * mid * cv > 0.0 and fr[2, 2] + a * mid * vz > 0.0
+                        and q0 + (q1 + q2 * mid) * mid > 0.0):
+                    continue
+                for g in range(gx.shape[0]):
+                    t = lo + (hi - lo) * gx[g]
+                    wt = (hi - lo) * gw[g]
+                    rr = a * t
+                    inv = 1.0 / math.sqrt(1.0 + rr * rr)
+                    hx = (fr[2, 0] + rr * (cp * fr[0, 0] + sp * fr[1, 0])) * inv
+                    hy = (fr[2, 1] + rr * (cp * fr[0, 1] + sp * fr[1, 1])) * inv
+                    hz = (fr[2, 2] + rr * (cp * fr[0, 2] + sp * fr[1, 2])) * inv
+                    c = hx * w[0] + hy * w[1] + hz * w[2]
+                    ox = 2.0 * c * hx - w[0]
+                    oy = 2.0 * c * hy - w[1]
+                    oz = 2.0 * c * hz - w[2]
+                    if not (c > 0.0 and oz > 1e-12):
+                        continue
+                    dwh = wt * (2.0 * np.pi / n_psi) * a * a * t * inv ** 3.0
+                    weight = 4.0 * c * dwh
+                    # own_facet at (ωi, ωo)
+                    bx, by, bz = w[0] + ox, w[1] + oy, w[2] + oz
+                    norm = math.sqrt(bx * bx + by * by + bz * bz)
+                    bx, by, bz = bx / norm, by / norm, bz / norm
+                    if not bz > 0.0:
+                        continue
+                    lx = fr[0, 0] * bx + fr[0, 1] * by + fr[0, 2] * bz
+                    ly = fr[1, 0] * bx + fr[1, 1] * by + fr[1, 2] * bz
+                    lz = fr[2, 0] * bx + fr[2, 1] * by + fr[2, 2] * bz
+                    dk = _beckmann1(lx, ly, lz, a) * FACET_WEIGHT
+                    area_o = _projected_area1(ox, oy, oz, normals, a)
+                    if g_form == _G_TRACED:
+                        g1o = min(1.0, oz / area_o) if oz > 0.0 else 0.0
+                        r_o = ratio_one(rot_c * ox + rot_s * oy, rot_c * oy - rot_s * ox, oz, k, theta, phi,
+                                        esc_perm, flat)
+                        gg = min(g1i * g1o * math.sqrt(r_i[p] * r_o), min(g1i, g1o))
+                    else:
+                        lam_o = max(area_o / oz - 1.0, 0.0) if oz > 0.0 else math.inf
+                        if g_form == _G_CORRELATED:
+                            gg = 1.0 / (1.0 + lam_i[p] + lam_o)
+                        else:
+                            gg = 1.0 / ((1.0 + lam_i[p]) * (1.0 + lam_o))
+                    acc += dk * gg / (4.0 * w[2]) * weight
+        out[p] = acc
+
+
+@device
+def _beckmann1(lx, ly, lz, a):
+    """:func:`d_beckmann` of an isotropic lobe, one local normal."""
+    if lz <= 0.0:
+        return 0.0
+    c2 = lz * lz
+    u = lx / a
+    v = ly / a
+    return math.exp(-(u * u + v * v) / c2) / (np.pi * a * a * c2 * c2)
 
 
 def _exit_nodes(e, beta):
@@ -902,6 +1062,10 @@ class SingleBounce(_Term):
         wi = np.asarray(wi, float).reshape(-1, 3)
         nu = wi.shape[0]
         uu, kk = np.nonzero(self.dist.facet_areas(wi) > MIN_PROBABILITY)
+        if not fresnel and pyramid_walk.compiled():
+            out = np.zeros((nu, 4))
+            out[uu, kk] = self._facet_energy_compiled(wi[uu], kk, self.dist.lambda_(wi)[uu], _FINE if fine else _COARSE)
+            return out
         owner, wo, w, _ = _facet_rule(self.dist, wi[uu], kk, _FINE if fine else _COARSE)
         lam_i = self.dist.lambda_(wi)
         r_i = self.traced_ratio(wi[uu], kk)[owner] if self.walk == "traced" else None
@@ -916,6 +1080,36 @@ class SingleBounce(_Term):
         out = np.zeros((nu, 4, n))
         for ch in range(n):
             out[uu, kk, ch] = np.bincount(owner, val * fr[:, ch], minlength=uu.size)
+        return out
+
+    def _facet_energy_compiled(self, wi, k, lam_i, level):
+        """The grey energies of :meth:`facet_energy` of the pairs (``wi[P, 3]``, facet ``k[P]``)
+        given Λ(ωi) ``lam_i[P]``, by the compiled rule (:func:`_facet_energy_rows`)."""
+        from .._jit import parallel_rows
+
+        n_whole, n_cut, nodes, t_edges = level
+        gx, gw = gauss_legendre(nodes, 0.0, 1.0)
+        wi = np.ascontiguousarray(wi, dtype=float)
+        k = np.ascontiguousarray(k, dtype=np.int64)
+        lam_i = np.ascontiguousarray(lam_i, dtype=float)
+        if self.walk == "traced":
+            r_i = np.ascontiguousarray(self.traced_ratio(wi, k), dtype=float)
+            g_form = _G_TRACED
+        else:
+            r_i = np.ones(wi.shape[0])
+            g_form = _G_CORRELATED if self.correlated else _G_UNCORRELATED
+        theta, phi, esc_perm, flat = pyramid_walk.table().ratio_arrays()
+        out = np.empty(wi.shape[0])
+        dist = self.dist
+        args = (dist.frames, dist.normals, float(dist.alpha), g_form, n_whole, n_cut, np.ascontiguousarray(gx),
+                np.ascontiguousarray(gw), np.ascontiguousarray(t_edges, dtype=float), float(np.cos(dist.phi0)),
+                float(np.sin(dist.phi0)), theta, phi, esc_perm, flat)
+
+        def run(lo, hi):
+            _facet_energy_rows(wi[lo:hi], k[lo:hi], lam_i[lo:hi], r_i[lo:hi], *args, out[lo:hi])
+
+        # a pair's rule has hundreds of nodes: worth a thread from a few hundred pairs on
+        parallel_rows(run, wi.shape[0], min_rows=256)
         return out
 
     def albedo_rule(self, wi):
