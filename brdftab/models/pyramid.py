@@ -855,6 +855,8 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
     front = (c0 > 0) & (p_first > MIN_PROBABILITY)
     r_esc, r_hit = tab.ratios(_facet_frame(dist, wi))
     r_esc, r_hit = np.nan_to_num(r_esc, nan=1.0), np.nan_to_num(r_hit, nan=1.0)
+    if pyramid_walk.compiled():
+        return _traced_walk_compiled(dist, wi, mb, depth_t, c0, p_first, front, r_esc, r_hit)
     first_cont = np.zeros((nu, 4))
     uu, kk = np.nonzero(front)
     u, code, mass = uu, kk, p_first[uu, kk]
@@ -914,6 +916,184 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
     return _Walk(cat["u"], cat["dirs"], cat["prob"], cat["bounces"], cat["faces"], cat["cosines"],
                  u[go], mass_cont[go], cosines[go], p_first, first_cont, np.where(front, 0.0, p_first),
                  faces[go, 0])
+
+
+def _traced_walk_compiled(dist, wi, mb, depth_t, c0, p_first, front, r_esc, r_hit) -> _Walk:
+    """:func:`_traced_walk` by the compiled :func:`_traced_walk_rows` (one incidence direction per
+    row, its states breadth first), in the numpy code's order (bounce count, then incidence,
+    then face sequence)."""
+    nu = wi.shape[0]
+    args = (np.ascontiguousarray(wi), np.ascontiguousarray(c0), np.ascontiguousarray(p_first),
+            np.ascontiguousarray(front), np.ascontiguousarray(r_esc), np.ascontiguousarray(r_hit),
+            dist.normals, float(dist.alpha), mb, depth_t)
+    n_ex = np.zeros(nu, np.int64)
+    n_in = np.zeros(nu, np.int64)
+    first_cont = np.zeros((nu, 4))
+    dummy = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros((0, mb), np.int64),
+             np.zeros((0, mb)), np.zeros(0), np.zeros((0, mb)), np.zeros(0, np.int64))
+    _traced_walk_rows(*args, False, n_ex, n_in, first_cont, np.zeros(nu + 1, np.int64), np.zeros(nu + 1, np.int64),
+                      *dummy)
+    ex_start = np.concatenate([[0], np.cumsum(n_ex)])
+    in_start = np.concatenate([[0], np.cumsum(n_in)])
+    m, q = int(ex_start[-1]), int(in_start[-1])
+    bufs = (np.empty(m, np.int64), np.empty((m, 3)), np.empty(m), np.empty(m, np.int64), np.full((m, mb), -1),
+            np.full((m, mb), np.nan), np.empty(q), np.full((q, mb), np.nan), np.empty(q, np.int64))
+    _traced_walk_rows(*args, True, n_ex, n_in, first_cont, ex_start, in_start, *bufs)
+    depth, dirs, prob, _, faces, cosines, in_prob, in_cosines, in_faces0 = bufs
+    order = np.argsort(depth, kind="stable")
+    u = np.repeat(np.arange(nu), n_ex)
+    in_u = np.repeat(np.arange(nu), n_in)
+    return _Walk(u[order], dirs[order], prob[order], depth[order], faces[order], cosines[order],
+                 in_u, in_prob, in_cosines, p_first, first_cont, np.where(front, 0.0, p_first), in_faces0)
+
+
+@kernel
+def _traced_walk_rows(wi, c0, p_first, front, r_esc, r_hit, F, alpha, mb, depth_t, fill, n_ex, n_in, first_cont,
+                      ex_start, in_start, ex_depth, ex_dirs, ex_prob, ex_code, ex_faces, ex_cos, in_prob, in_cos,
+                      in_face0):
+    """The states of :func:`_traced_walk` per incidence direction ``wi[u]``, breadth first in
+    the numpy code's order. First call (``fill`` False): count the exits and inside states
+    (``n_ex``, ``n_in``) and fill ``first_cont``; second call: write them from ``ex_start[u]``,
+    ``in_start[u]``."""
+    cap = 4
+    for _ in range(1, mb):
+        cap *= 3
+    sd = np.empty((cap, 3))
+    sm = np.empty(cap)
+    sc = np.empty(cap, np.int64)
+    sf = np.empty((cap, mb), np.int64)
+    sk = np.empty((cap, mb))
+    nd = np.empty((cap, 3))
+    nm = np.empty(cap)
+    nc = np.empty(cap, np.int64)
+    nf = np.empty((cap, mb), np.int64)
+    nk = np.empty((cap, mb))
+    cd = np.empty(4)
+    hit_w = np.empty(4)
+    split = np.empty(4)
+    p_hit = np.empty(4)
+    w_hit = np.empty(4)
+    for u in range(wi.shape[0]):
+        ns = 0
+        for k in range(4):
+            if front[u, k]:
+                dot = -wi[u, 0] * F[k, 0] + -wi[u, 1] * F[k, 1] + -wi[u, 2] * F[k, 2]
+                for j in range(3):
+                    sd[ns, j] = -wi[u, j] - 2.0 * dot * F[k, j]
+                sm[ns] = p_first[u, k]
+                sc[ns] = k
+                for j in range(mb):
+                    sf[ns, j] = -1
+                    sk[ns, j] = math.nan
+                sf[ns, 0] = k
+                sk[ns, 0] = c0[u, k]
+                ns += 1
+        e = ex_start[u]
+        q = in_start[u]
+        ne = 0
+        nq = 0
+        for depth in range(1, mb + 1):
+            nn = 0
+            for i in range(ns):
+                dz = sd[i, 2]
+                tot = 0.0
+                for j in range(4):
+                    cd[j] = sd[i, 0] * F[j, 0] + sd[i, 1] * F[j, 1] + sd[i, 2] * F[j, 2]
+                    hit_w[j] = FACET_WEIGHT * _visible_area1(-cd[j], alpha) if cd[j] < 0.0 else 0.0
+                    tot += hit_w[j]
+                none = not tot > 0.0
+                if dz > 0.0:
+                    g1 = 1.0 if none else min(dz / _projected_area1(sd[i, 0], sd[i, 1], dz, F, alpha), 1.0)
+                else:
+                    g1 = 0.0
+                for j in range(4):
+                    split[j] = 0.0 if none else hit_w[j] / tot
+                    p_hit[j] = (1.0 - g1) * split[j]
+                p_esc = g1
+                code = sc[i]
+                if depth <= depth_t:
+                    w_esc = p_esc * r_esc[u, (4 ** depth - 4) // 3 + code]
+                    if depth < depth_t:
+                        s_hit = 0.0
+                        for j in range(4):
+                            w_hit[j] = p_hit[j] * r_hit[u, (4 ** (depth + 1) - 4) // 3 + 4 * code + j]
+                            s_hit += w_hit[j]
+                        t_tot = w_esc + s_hit
+                        if t_tot > 0.0:
+                            p_esc = w_esc / t_tot
+                            for j in range(4):
+                                p_hit[j] = w_hit[j] / t_tot
+                    else:
+                        p_esc = p_esc if none else min(w_esc, 1.0)
+                        for j in range(4):
+                            p_hit[j] = (1.0 - p_esc) * split[j]
+                mass = sm[i]
+                esc = mass * p_esc
+                cont = mass - esc
+                if depth == 1:
+                    if cont <= 1e-9 * mass and not none:
+                        ssum = 0.0
+                        for j in range(4):
+                            ssum += p_hit[j]
+                        if ssum <= 0.0:
+                            for j in range(4):
+                                p_hit[j] = split[j]
+                        ssum = 0.0
+                        for j in range(4):
+                            ssum += p_hit[j]
+                        for j in range(4):
+                            p_hit[j] = p_hit[j] / ssum
+                        cont = mass
+                    first_cont[u, sf[i, 0]] = 0.0 if none else cont
+                if esc > MIN_PROBABILITY:
+                    if fill:
+                        ex_depth[e + ne] = depth
+                        for j in range(3):
+                            ex_dirs[e + ne, j] = sd[i, j]
+                        ex_prob[e + ne] = esc
+                        ex_code[e + ne] = code
+                        for j in range(mb):
+                            ex_faces[e + ne, j] = sf[i, j]
+                            ex_cos[e + ne, j] = sk[i, j]
+                    ne += 1
+                go = cont > MIN_PROBABILITY and not none
+                if depth == mb:
+                    if go:
+                        if fill:
+                            in_prob[q + nq] = cont
+                            for j in range(mb):
+                                in_cos[q + nq, j] = sk[i, j]
+                            in_face0[q + nq] = sf[i, 0]
+                        nq += 1
+                    continue
+                if not go:
+                    continue
+                for j in range(4):
+                    if not p_hit[j] > 0.0:
+                        continue
+                    nxt = mass * p_hit[j]
+                    if not nxt > MIN_PROBABILITY:
+                        continue
+                    dot = sd[i, 0] * F[j, 0] + sd[i, 1] * F[j, 1] + sd[i, 2] * F[j, 2]
+                    for x in range(3):
+                        nd[nn, x] = sd[i, x] - 2.0 * dot * F[j, x]
+                    nm[nn] = nxt
+                    nc[nn] = 4 * code + j
+                    for x in range(mb):
+                        nf[nn, x] = sf[i, x]
+                        nk[nn, x] = sk[i, x]
+                    nf[nn, depth] = j
+                    nk[nn, depth] = -cd[j]
+                    nn += 1
+            sd, nd = nd, sd
+            sm, nm = nm, sm
+            sc, nc = nc, sc
+            sf, nf = nf, sf
+            sk, nk = nk, sk
+            ns = nn
+        if not fill:
+            n_ex[u] = ne
+            n_in[u] = nq
 
 
 def _run_walk(dist: PyramidDistribution, wi, max_bounces: int, walk: str) -> _Walk:
