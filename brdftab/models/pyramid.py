@@ -1235,13 +1235,15 @@ class SingleBounce(_Term):
             g = 1.0 / (1.0 + lam_i + lam_o) if self.correlated else 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
         return np.where(h[:, 2] > 0, dk * g / (4.0 * wi[:, 2]), 0.0), 0.5 * norm
 
-    def facet_energy(self, wi, lam=None, n=1, fresnel=False, fine=False):
+    def facet_energy(self, wi, lam=None, n=1, fresnel=False, fine=False, only=None):
         """∫ f_k cosθo dωo of each facet's lobe for ``wi[U, 3]``: [U, 4] (grey, no Fresnel) or
         with ``fresnel`` [U, 4, n]. ``fine``: the albedo rule's nodes (:data:`_FINE`); else the
-        coarse rule the walk uses (:data:`_COARSE`)."""
+        coarse rule the walk uses (:data:`_COARSE`). ``only`` [U, 4]: the facets wanted (the
+        others are left 0)."""
         wi = np.asarray(wi, float).reshape(-1, 3)
         nu = wi.shape[0]
-        uu, kk = np.nonzero(self.dist.facet_areas(wi) > MIN_PROBABILITY)
+        seen = self.dist.facet_areas(wi) > MIN_PROBABILITY
+        uu, kk = np.nonzero(seen if only is None else seen & only)
         if not fresnel and pyramid_walk.compiled():
             out = np.zeros((nu, 4))
             out[uu, kk] = self._facet_energy_compiled(wi[uu], kk, self.dist.lambda_(wi)[uu], _FINE if fine else _COARSE)
@@ -1355,8 +1357,11 @@ class MultiBounce(_Term):
         if pair.size == 0:
             return out
         # the single-bounce energies only where a lobe is seen
-        rows = np.unique(u[ex])
-        w = _share(w, self.single.facet_energy(uniq[rows]), rows)
+        # (the energies of the facets that begin a seen exit's sequence: the others scale nothing here)
+        rows, at = np.unique(u[ex], return_inverse=True)
+        only = np.zeros((rows.size, 4), bool)
+        only[at.ravel(), w.faces[ex, 0]] = True
+        w = _share(w, self.single.facet_energy(uniq[rows], only=only), rows)
         energy = w.prob[sel, None] * _fresnel_product(self.fres, w.cosines[sel], lam, n)
         val = _lobe(c, self.beta) / (_above_horizon(e[ex, 2], self.beta) * wo[pair, 2])
         for ch in range(n):
