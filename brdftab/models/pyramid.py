@@ -185,7 +185,7 @@ from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from . import pyramid_walk
-from .pyramid_walk import ratio_one
+from .pyramid_walk import ratio_at, ratio_one
 from ._registry import register
 from .combinators import Sum
 from .distributions import beckmann_D_scalar, d_beckmann
@@ -853,10 +853,10 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
     area = dist.facet_areas(wi)
     p_first = area / area.sum(axis=1, keepdims=True)
     front = (c0 > 0) & (p_first > MIN_PROBABILITY)
+    if pyramid_walk.compiled():
+        return _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front)
     r_esc, r_hit = tab.ratios(_facet_frame(dist, wi))
     r_esc, r_hit = np.nan_to_num(r_esc, nan=1.0), np.nan_to_num(r_hit, nan=1.0)
-    if pyramid_walk.compiled():
-        return _traced_walk_compiled(dist, wi, mb, depth_t, c0, p_first, front, r_esc, r_hit)
     first_cont = np.zeros((nu, 4))
     uu, kk = np.nonzero(front)
     u, code, mass = uu, kk, p_first[uu, kk]
@@ -918,14 +918,15 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
                  faces[go, 0])
 
 
-def _traced_walk_compiled(dist, wi, mb, depth_t, c0, p_first, front, r_esc, r_hit) -> _Walk:
+def _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front) -> _Walk:
     """:func:`_traced_walk` by the compiled :func:`_traced_walk_rows` (one incidence direction per
-    row, its states breadth first), in the numpy code's order (bounce count, then incidence,
-    then face sequence)."""
+    row, its states breadth first, the table's ratios of the sequences it reaches), in the numpy
+    code's order (bounce count, then incidence, then face sequence)."""
     nu = wi.shape[0]
+    theta_w, phi_w = tab.angles(_facet_frame(dist, wi))
     args = (np.ascontiguousarray(wi), np.ascontiguousarray(c0), np.ascontiguousarray(p_first),
-            np.ascontiguousarray(front), np.ascontiguousarray(r_esc), np.ascontiguousarray(r_hit),
-            dist.normals, float(dist.alpha), mb, depth_t)
+            np.ascontiguousarray(front), theta_w, phi_w, *tab.ratio_arrays(hit=True),
+            dist.normals, float(dist.alpha), mb, tab.depth)
     n_ex = np.zeros(nu, np.int64)
     n_in = np.zeros(nu, np.int64)
     first_cont = np.zeros((nu, 4))
@@ -948,7 +949,8 @@ def _traced_walk_compiled(dist, wi, mb, depth_t, c0, p_first, front, r_esc, r_hi
 
 
 @kernel
-def _traced_walk_rows(wi, c0, p_first, front, r_esc, r_hit, F, alpha, mb, depth_t, fill, n_ex, n_in, first_cont,
+def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, esc_parts, hit_parts, F, alpha, mb,
+                      depth_t, fill, n_ex, n_in, first_cont,
                       ex_start, in_start, ex_depth, ex_dirs, ex_prob, ex_code, ex_faces, ex_cos, in_prob, in_cos,
                       in_face0):
     """The states of :func:`_traced_walk` per incidence direction ``wi[u]``, breadth first in
@@ -1012,11 +1014,13 @@ def _traced_walk_rows(wi, c0, p_first, front, r_esc, r_hit, F, alpha, mb, depth_
                 p_esc = g1
                 code = sc[i]
                 if depth <= depth_t:
-                    w_esc = p_esc * r_esc[u, (4 ** depth - 4) // 3 + code]
+                    w_esc = p_esc * ratio_at(theta_w[u], phi_w[u], (4 ** depth - 4) // 3 + code, theta, phi, perm,
+                                             esc_parts)
                     if depth < depth_t:
                         s_hit = 0.0
                         for j in range(4):
-                            w_hit[j] = p_hit[j] * r_hit[u, (4 ** (depth + 1) - 4) // 3 + 4 * code + j]
+                            w_hit[j] = p_hit[j] * ratio_at(theta_w[u], phi_w[u], (4 ** (depth + 1) - 4) // 3 + 4 * code
+                                                           + j, theta, phi, perm, hit_parts)
                             s_hit += w_hit[j]
                         t_tot = w_esc + s_hit
                         if t_tot > 0.0:

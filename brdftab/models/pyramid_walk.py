@@ -193,9 +193,7 @@ class WalkTable:
         (:func:`interpolate_rows`) unless inside :func:`brdftab.brdf.numpy_reference`."""
         if not compiled():
             return self._interpolate_numpy(w, arrays, columns)
-        w = np.asarray(w, float).reshape(-1, 3)
-        theta_w = np.arccos(np.clip(w[:, 2], -1.0, 1.0))
-        phi_w = np.arctan2(w[:, 1], w[:, 0])
+        theta_w, phi_w = self.angles(w)
         columns = np.ascontiguousarray(columns, dtype=np.int64)                # [U, C] or [1, C]
         out = []
         for arr in arrays:
@@ -216,10 +214,19 @@ class WalkTable:
                                                     dtype=float))
         return cache[key][1]
 
-    def ratio_arrays(self):
-        """What the compiled kernels need to evaluate the escape ratio of one code
-        (:func:`ratio_one`): (θ nodes, φ nodes, escape code maps, flat escape parts)."""
-        return self.theta, self.phi, np.ascontiguousarray(self.esc_perm, dtype=np.int64), self._flat(self._parts()[0])
+    def ratio_arrays(self, hit=False):
+        """What the compiled kernels need to evaluate the ratios of one code (:func:`ratio_at`):
+        (θ nodes, φ nodes, code maps, flat escape parts[, flat hit parts])."""
+        parts = self._parts()
+        return (self.theta, self.phi, np.ascontiguousarray(self.esc_perm, dtype=np.int64), self._flat(parts[0])) \
+            + ((self._flat(parts[1]),) if hit else ())
+
+    @staticmethod
+    def angles(w):
+        """Polar angles and azimuths of unit directions ``w[U, 3]`` as :meth:`_interpolate` takes
+        them (the compiled kernels take these, computed by numpy)."""
+        w = np.asarray(w, float).reshape(-1, 3)
+        return np.arccos(np.clip(w[:, 2], -1.0, 1.0)), np.arctan2(w[:, 1], w[:, 0])
 
     def _interpolate_numpy(self, w, arrays, columns):
         """Bilinear interpolation of ``arrays`` [θ, φ, n_codes, ...] at unit directions
@@ -351,18 +358,26 @@ def interpolate_rows(theta_w, phi_w, columns, flat, theta, phi, esc_perm, out):
 
 
 @device
-def ratio_one(wx, wy, wz, code, theta, phi, esc_perm, flat):
-    """The escape ratio of :meth:`WalkTable.ratios` for one query ``code`` at one direction
-    (``flat``: the escape parts of :meth:`WalkTable.ratio_arrays`), 1 where it has no rays."""
+def ratio_at(theta_w, phi_w, code, theta, phi, esc_perm, flat):
+    """A ratio of :meth:`WalkTable.ratios` for one query ``code`` at a direction of polar angle
+    ``theta_w`` and azimuth ``phi_w`` (``flat``: :meth:`WalkTable.ratio_arrays`' escape parts,
+    or the hit parts), 1 where no node near it sees a ray on the branch (NaN there)."""
     nc = esc_perm.shape[1]
     step = phi.shape[0] * nc
-    op, cell, w00, w01, w10, w11 = _cell(math.acos(min(max(wz, -1.0), 1.0)), math.atan2(wy, wx), theta, phi)
+    op, cell, w00, w01, w10, w11 = _cell(theta_w, phi_w, theta, phi)
     b = cell * nc + esc_perm[op, code]
     num = (((0.0 + w00 * flat[b, 0]) + w01 * flat[b + nc, 0]) + w10 * flat[b + step, 0]) + w11 * flat[b + step + nc, 0]
     den = (((0.0 + w00 * flat[b, 1]) + w01 * flat[b + nc, 1]) + w10 * flat[b + step, 1]) + w11 * flat[b + step + nc, 1]
     if den > 0.0:
         return num / den
     return 1.0
+
+
+@device
+def ratio_one(wx, wy, wz, code, theta, phi, esc_perm, flat):
+    """:func:`ratio_at` of the direction (wx, wy, wz) (its angles by libm, which may differ from
+    numpy's in the last digit)."""
+    return ratio_at(math.acos(min(max(wz, -1.0), 1.0)), math.atan2(wy, wx), code, theta, phi, esc_perm, flat)
 
 
 @lru_cache(maxsize=1)
