@@ -185,7 +185,7 @@ from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from . import pyramid_walk
-from .pyramid_walk import ratio_at, ratio_one
+from .pyramid_walk import cell_of, ratio_in_cell, ratio_one
 from ._registry import register
 from .combinators import Sum
 from .distributions import beckmann_D_scalar, d_beckmann
@@ -922,6 +922,8 @@ def _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front) -> _Walk:
     """:func:`_traced_walk` by the compiled :func:`_traced_walk_rows` (one incidence direction per
     row, its states breadth first, the table's ratios of the sequences it reaches), in the numpy
     code's order (bounce count, then incidence, then face sequence)."""
+    from .._jit import parallel_rows
+
     nu = wi.shape[0]
     theta_w, phi_w = tab.angles(_facet_frame(dist, wi))
     args = (np.ascontiguousarray(wi), np.ascontiguousarray(c0), np.ascontiguousarray(p_first),
@@ -932,14 +934,24 @@ def _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front) -> _Walk:
     first_cont = np.zeros((nu, 4))
     dummy = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros((0, mb), np.int64),
              np.zeros((0, mb)), np.zeros(0), np.zeros((0, mb)), np.zeros(0, np.int64))
-    _traced_walk_rows(*args, False, n_ex, n_in, first_cont, np.zeros(nu + 1, np.int64), np.zeros(nu + 1, np.int64),
-                      *dummy)
+    zero = np.zeros(nu + 1, np.int64)
+
+    def count(lo, hi):
+        _traced_walk_rows(*(a[lo:hi] for a in args[:6]), *args[6:], False, n_ex[lo:hi], n_in[lo:hi],
+                          first_cont[lo:hi], zero, zero, *dummy)
+
+    parallel_rows(count, nu, min_rows=1024)
     ex_start = np.concatenate([[0], np.cumsum(n_ex)])
     in_start = np.concatenate([[0], np.cumsum(n_in)])
     m, q = int(ex_start[-1]), int(in_start[-1])
     bufs = (np.empty(m, np.int64), np.empty((m, 3)), np.empty(m), np.empty(m, np.int64), np.full((m, mb), -1),
             np.full((m, mb), np.nan), np.empty(q), np.full((q, mb), np.nan), np.empty(q, np.int64))
-    _traced_walk_rows(*args, True, n_ex, n_in, first_cont, ex_start, in_start, *bufs)
+
+    def fill(lo, hi):
+        _traced_walk_rows(*(a[lo:hi] for a in args[:6]), *args[6:], True, n_ex[lo:hi], n_in[lo:hi],
+                          first_cont[lo:hi], ex_start[lo:hi], in_start[lo:hi], *bufs)
+
+    parallel_rows(fill, nu, min_rows=1024)
     depth, dirs, prob, _, faces, cosines, in_prob, in_cosines, in_faces0 = bufs
     order = np.argsort(depth, kind="stable")
     u = np.repeat(np.arange(nu), n_ex)
@@ -976,6 +988,7 @@ def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, 
     p_hit = np.empty(4)
     w_hit = np.empty(4)
     for u in range(wi.shape[0]):
+        op, cell, w00, w01, w10, w11 = cell_of(theta_w[u], phi_w[u], theta, phi)
         ns = 0
         for k in range(4):
             if front[u, k]:
@@ -1014,13 +1027,14 @@ def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, 
                 p_esc = g1
                 code = sc[i]
                 if depth <= depth_t:
-                    w_esc = p_esc * ratio_at(theta_w[u], phi_w[u], (4 ** depth - 4) // 3 + code, theta, phi, perm,
-                                             esc_parts)
+                    w_esc = p_esc * ratio_in_cell(op, cell, w00, w01, w10, w11, (4 ** depth - 4) // 3 + code,
+                                                  phi, perm, esc_parts)
                     if depth < depth_t:
                         s_hit = 0.0
                         for j in range(4):
-                            w_hit[j] = p_hit[j] * ratio_at(theta_w[u], phi_w[u], (4 ** (depth + 1) - 4) // 3 + 4 * code
-                                                           + j, theta, phi, perm, hit_parts)
+                            w_hit[j] = p_hit[j] * ratio_in_cell(op, cell, w00, w01, w10, w11,
+                                                                (4 ** (depth + 1) - 4) // 3 + 4 * code + j, phi, perm,
+                                                                hit_parts)
                             s_hit += w_hit[j]
                         t_tot = w_esc + s_hit
                         if t_tot > 0.0:

@@ -322,7 +322,7 @@ def _axis(grid, x):
 
 
 @device
-def _cell(theta_w, phi_w, theta, phi):
+def cell_of(theta_w, phi_w, theta, phi):
     """Symmetry index, flat index of the (θ, φ) cell's first node and the bilinear weights of a
     direction of polar angle ``theta_w`` and azimuth ``phi_w`` (from a face normal's;
     :func:`domain_op`)."""
@@ -348,7 +348,7 @@ def interpolate_rows(theta_w, phi_w, columns, flat, theta, phi, esc_perm, out):
     nc = esc_perm.shape[1]
     step = phi.shape[0] * nc
     for u in range(theta_w.shape[0]):
-        op, cell, w00, w01, w10, w11 = _cell(theta_w[u], phi_w[u], theta, phi)
+        op, cell, w00, w01, w10, w11 = cell_of(theta_w[u], phi_w[u], theta, phi)
         cu = u if columns.shape[0] > 1 else 0
         for c in range(columns.shape[1]):
             b = cell * nc + esc_perm[op, columns[cu, c]]
@@ -362,9 +362,15 @@ def ratio_at(theta_w, phi_w, code, theta, phi, esc_perm, flat):
     """A ratio of :meth:`WalkTable.ratios` for one query ``code`` at a direction of polar angle
     ``theta_w`` and azimuth ``phi_w`` (``flat``: :meth:`WalkTable.ratio_arrays`' escape parts,
     or the hit parts), 1 where no node near it sees a ray on the branch (NaN there)."""
+    op, cell, w00, w01, w10, w11 = cell_of(theta_w, phi_w, theta, phi)
+    return ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat)
+
+
+@device
+def ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat):
+    """:func:`ratio_at` given the direction's cell (:func:`cell_of`)."""
     nc = esc_perm.shape[1]
     step = phi.shape[0] * nc
-    op, cell, w00, w01, w10, w11 = _cell(theta_w, phi_w, theta, phi)
     b = cell * nc + esc_perm[op, code]
     num = (((0.0 + w00 * flat[b, 0]) + w01 * flat[b + nc, 0]) + w10 * flat[b + step, 0]) + w11 * flat[b + step + nc, 0]
     den = (((0.0 + w00 * flat[b, 1]) + w01 * flat[b + nc, 1]) + w10 * flat[b + step, 1]) + w11 * flat[b + step + nc, 1]
