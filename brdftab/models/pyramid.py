@@ -1262,9 +1262,11 @@ class SingleBounce(_Term):
         nu = wi.shape[0]
         seen = self.dist.facet_areas(wi) > MIN_PROBABILITY
         uu, kk = np.nonzero(seen if only is None else seen & only)
-        if not fresnel and pyramid_walk.compiled():
+        if not fresnel and not fine and pyramid_walk.compiled():
+            # (the fine rule stays numpy: bounce_fractions pairs it with its Fresnel-weighted twin,
+            # and the two sum to the incident energy to the last digits only by the same arithmetic)
             out = np.zeros((nu, 4))
-            out[uu, kk] = self._facet_energy_compiled(wi[uu], kk, self.dist.lambda_(wi)[uu], _FINE if fine else _COARSE)
+            out[uu, kk] = self._facet_energy_compiled(wi[uu], kk, self.dist.lambda_(wi)[uu], _COARSE)
             return out
         owner, wo, w, _ = _facet_rule(self.dist, wi[uu], kk, _FINE if fine else _COARSE)
         lam_i = self.dist.lambda_(wi)
@@ -1353,6 +1355,8 @@ class MultiBounce(_Term):
         u, e = w.u[sel], w.dirs[sel]
         counts = np.bincount(u, minlength=uniq.shape[0])
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        if pyramid_walk.compiled():
+            return self._lobes_compiled(wi, wo, uniq, inv, w, sel, starts, counts, lam, n)
         per_pair = counts[inv]
         # (pair, exit) entries near an exit, in bounded batches
         limit = 1 << 21
@@ -1378,7 +1382,7 @@ class MultiBounce(_Term):
         # (the energies of the facets that begin a seen exit's sequence: the others scale nothing here)
         rows, at = np.unique(u[ex], return_inverse=True)
         only = np.zeros((rows.size, 4), bool)
-        only[at.ravel(), w.faces[ex, 0]] = True
+        only[at.ravel(), w.faces[sel[ex], 0]] = True
         w = _share(w, self.single.facet_energy(uniq[rows], only=only), rows)
         energy = w.prob[sel, None] * _fresnel_product(self.fres, w.cosines[sel], lam, n)
         val = _lobe(c, self.beta) / (_above_horizon(e[ex, 2], self.beta) * wo[pair, 2])
@@ -1386,9 +1390,76 @@ class MultiBounce(_Term):
             out[:, ch] = np.bincount(pair, val * energy[ex, ch], minlength=wi.shape[0])
         return out
 
+    def _lobes_compiled(self, wi, wo, uniq, inv, w, sel, starts, counts, lam, n):
+        """The rest of :meth:`_eval` compiled: the exits each pair sees (:func:`_exits_seen`), the
+        facet energies of their rows, and the lobes' sum (:func:`_exit_lobe_rows`)."""
+        from .._jit import parallel_rows
+
+        m = wi.shape[0]
+        e = np.ascontiguousarray(w.dirs[sel])
+        wo = np.ascontiguousarray(wo)
+        inv = np.ascontiguousarray(inv, dtype=np.int64)
+        starts = np.ascontiguousarray(starts, dtype=np.int64)
+        counts = np.ascontiguousarray(counts, dtype=np.int64)
+        seen = np.zeros(e.shape[0], np.uint8)
+        cos_cut = float(self.cos_cut)
+
+        def mark(lo, hi):
+            _exits_seen(wo[lo:hi], inv[lo:hi], starts, counts, e, cos_cut, seen)
+
+        parallel_rows(mark, m)      # (threads mark the same exits with the same value)
+        out = np.zeros((m, n))
+        ex = np.flatnonzero(seen)
+        if ex.size == 0:
+            return out
+        u = w.u[sel]
+        rows, at = np.unique(u[ex], return_inverse=True)
+        only = np.zeros((rows.size, 4), bool)
+        only[at.ravel(), w.faces[sel[ex], 0]] = True
+        w = _share(w, self.single.facet_energy(uniq[rows], only=only), rows)
+        energy = np.zeros((e.shape[0], n))
+        energy[ex] = w.prob[sel[ex], None] * _fresnel_product(self.fres, w.cosines[sel[ex]], lam, n)
+        norm = _above_horizon(e[:, 2], self.beta)
+
+        def lobes(lo, hi):
+            _exit_lobe_rows(wo[lo:hi], inv[lo:hi], starts, counts, e, norm, energy, cos_cut, float(self.beta),
+                            out[lo:hi])
+
+        parallel_rows(lobes, m)
+        return out
+
     def albedo_rule(self, wi):
         """Outgoing directions and weights [sr] resolving every exit lobe for ``wi[3]``."""
         return _albedo_rule(self, np.asarray(wi, float), single=False, multi=True)
+
+
+@kernel
+def _exits_seen(wo, inv, starts, counts, e, cos_cut, seen):
+    """Mark ``seen[x]`` the exits x (``e[X, 3]``, those of incidence u at ``starts[u]``, ``counts[u]``)
+    whose lobe reaches a pair's ``wo`` (cosine above ``cos_cut``; pair i has incidence ``inv[i]``)."""
+    for i in range(wo.shape[0]):
+        a = starts[inv[i]]
+        for x in range(a, a + counts[inv[i]]):
+            if wo[i, 0] * e[x, 0] + wo[i, 1] * e[x, 1] + wo[i, 2] * e[x, 2] > cos_cut:
+                seen[x] = 1
+
+
+@kernel
+def _exit_lobe_rows(wo, inv, starts, counts, e, norm, energy, cos_cut, beta, out):
+    """``out[i]`` = Σ over the exits x of pair i's incidence whose lobe reaches ``wo[i]`` of
+    L(⟨ωo, e_x⟩) / (N(e_x) cosθo) · energy[x] (:meth:`MultiBounce._eval`, in its order)."""
+    nc = out.shape[1]
+    for i in range(wo.shape[0]):
+        a = starts[inv[i]]
+        for x in range(a, a + counts[inv[i]]):
+            c = wo[i, 0] * e[x, 0] + wo[i, 1] * e[x, 1] + wo[i, 2] * e[x, 2]
+            if not c > cos_cut:
+                continue
+            t2 = (1.0 - c * c) / (c * c * beta * beta)
+            lobe = math.exp(-t2) / (np.pi * beta * beta * c * c * c) if c > 0.0 else 0.0
+            val = lobe / (norm[x] * wo[i, 2])
+            for ch in range(nc):
+                out[i, ch] += val * energy[x, ch]
 
 
 # --------------------------------------------------------------------------------------------
