@@ -1232,10 +1232,35 @@ class SingleBounce(_Term):
         return dk * (g / (4.0 * wi[..., 2]))[..., None], 0.5 * norm
 
     def _eval(self, wi, wo, lam, n):
-        fk, cos_d = self.facet_terms(wi, wo)
-        base = fk.sum(axis=1) / wo[:, 2]
+        if self.walk == "traced" and pyramid_walk.compiled():
+            base, cos_d = self._traced_base(wi, wo)
+        else:
+            fk, cos_d = self.facet_terms(wi, wo)
+            base = fk.sum(axis=1) / wo[:, 2]
         f = self.fres.F(cos_d, lam, n)
         return base[:, None] * f if np.ndim(f) else np.repeat(base[:, None], n, axis=1)
+
+    def _traced_base(self, wi, wo):
+        """Σ_k f_k cosθo / cosθo (no Fresnel) and cos_d of :meth:`facet_terms` with the traced
+        walk's G, compiled (:func:`_traced_single_rows`; the table's angles from numpy)."""
+        from .._jit import parallel_rows
+
+        tab = pyramid_walk.table()
+        wi = np.ascontiguousarray(wi, dtype=float)
+        wo = np.ascontiguousarray(wo, dtype=float)
+        ti, pi = tab.angles(_facet_frame(self.dist, wi))
+        to, po = tab.angles(_facet_frame(self.dist, wo))
+        theta, phi, perm, flat = tab.ratio_arrays()
+        base = np.empty(wi.shape[0])
+        cos_d = np.empty(wi.shape[0])
+
+        def run(lo, hi):
+            _traced_single_rows(wi[lo:hi], wo[lo:hi], ti[lo:hi], pi[lo:hi], to[lo:hi], po[lo:hi], self.dist.frames,
+                                self.dist.normals, float(self.dist.alpha), theta, phi, perm, flat, base[lo:hi],
+                                cos_d[lo:hi])
+
+        parallel_rows(run, wi.shape[0])
+        return base, cos_d
 
     def own_facet(self, wi, wo, k, lam_i, r_i=None):
         """Grey f cosθo of facet k's lobe alone (no Fresnel) at pairs ``wi[N, 3]``, ``wo[N, 3]``,
@@ -1431,6 +1456,41 @@ class MultiBounce(_Term):
     def albedo_rule(self, wi):
         """Outgoing directions and weights [sr] resolving every exit lobe for ``wi[3]``."""
         return _albedo_rule(self, np.asarray(wi, float), single=False, multi=True)
+
+
+@kernel
+def _traced_single_rows(wi, wo, ti, pi, to, po, frames, normals, alpha, theta, phi, perm, flat, base, cos_d):
+    """:meth:`SingleBounce.facet_terms` with the traced walk's G (:meth:`SingleBounce.traced_G`),
+    summed over the facets and divided by cosθo (``base``), and cos_d, per pair; ``ti``, ``pi``,
+    ``to``, ``po``: the table's angles of ωi and ωo (numpy's)."""
+    ri = np.empty(4)
+    ro = np.empty(4)
+    for m in range(wi.shape[0]):
+        hx, hy, hz = wi[m, 0] + wo[m, 0], wi[m, 1] + wo[m, 1], wi[m, 2] + wo[m, 2]
+        norm = math.sqrt(hx * hx + hy * hy + hz * hz)
+        hx, hy, hz = hx / norm, hy / norm, hz / norm
+        cos_d[m] = 0.5 * norm
+        # G1 of both directions (0 at and below the horizon)
+        wz = wi[m, 2]
+        g1i = min(1.0, wz / _projected_area1(wi[m, 0], wi[m, 1], wz, normals, alpha)) if wz > 0.0 else 0.0
+        oz = wo[m, 2]
+        g1o = min(1.0, oz / _projected_area1(wo[m, 0], wo[m, 1], oz, normals, alpha)) if oz > 0.0 else 0.0
+        op, cell, w00, w01, w10, w11 = cell_of(ti[m], pi[m], theta, phi)
+        for k in range(4):
+            ri[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
+        op, cell, w00, w01, w10, w11 = cell_of(to[m], po[m], theta, phi)
+        for k in range(4):
+            ro[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
+        tot = 0.0
+        for k in range(4):
+            fr = frames[k]
+            lx = fr[0, 0] * hx + fr[0, 1] * hy + fr[0, 2] * hz
+            ly = fr[1, 0] * hx + fr[1, 1] * hy + fr[1, 2] * hz
+            lz = fr[2, 0] * hx + fr[2, 1] * hy + fr[2, 2] * hz
+            dk = _beckmann1(lx, ly, lz, alpha) * FACET_WEIGHT if hz > 0.0 else 0.0
+            g = min(g1i * g1o * math.sqrt(ri[k] * ro[k]), min(g1i, g1o))
+            tot += dk * g / (4.0 * wz)
+        base[m] = tot / oz
 
 
 @kernel
