@@ -799,3 +799,17 @@ def test_evaluation_takes_only_the_facet_energies_it_needs(monkeypatch):
             monkeypatch.undo()
         assert np.count_nonzero(some) > 100
         np.testing.assert_array_equal(some, every)
+
+
+def test_distinct_rows_are_numpys():
+    from brdftab.models.pyramid import _distinct_rows
+
+    rng = np.random.default_rng(2)
+    rows = rng.normal(size=(5, 3))
+    rows[1] = [0.0, -0.0, 1.0]
+    for idx in (np.zeros(40, int), np.repeat(rng.integers(0, 5, 7), 30), rng.integers(0, 5, 300), np.arange(5)):
+        w = rows[idx]
+        uniq, inv = _distinct_rows(w)
+        ref_u, ref_inv = np.unique(w, axis=0, return_inverse=True)
+        np.testing.assert_array_equal(uniq, ref_u)
+        np.testing.assert_array_equal(inv, ref_inv.ravel())

@@ -1148,6 +1148,22 @@ def _share(w: _Walk, first_escape, rows=None) -> _Walk:
                  w.p_first, w.first_cont, lost, w.in_faces0)
 
 
+def _distinct_rows(w):
+    """``np.unique(w, axis=0, return_inverse=True)`` (distinct rows, sorted, and each row's
+    index among them), found over the runs of equal rows when there are few (a grid's pairs
+    come in runs of one incidence direction; sorting every row is the slow part)."""
+    m = w.shape[0]
+    same = np.all(w[1:] == w[:-1], axis=1)
+    if same.all():
+        return w[:1].copy(), np.zeros(m, np.int64)
+    heads = np.flatnonzero(np.concatenate([[True], ~same]))
+    if 8 * heads.size < m:
+        uniq, at = np.unique(w[heads], axis=0, return_inverse=True)
+        return uniq, np.repeat(at.ravel(), np.diff(np.append(heads, m)))
+    uniq, inv = np.unique(w, axis=0, return_inverse=True)
+    return uniq, inv.ravel()
+
+
 def _fresnel_product(fres, cosines, lam, n):
     """Π_j F(cos_j) over the bounces (NaN cosines: no bounce) → [S, n]."""
     s = cosines.shape[0]
@@ -1369,8 +1385,7 @@ class MultiBounce(_Term):
         return energy_grey[None, :] * _lobe(wo @ e.T, self.beta) / norm[None, :]
 
     def _eval(self, wi, wo, lam, n):
-        uniq, inv = np.unique(wi, axis=0, return_inverse=True)
-        inv = inv.ravel()
+        uniq, inv = _distinct_rows(wi)
         w = _run_walk(self.dist, uniq, self.max_bounces, self.walk_name)
         sel = np.flatnonzero(w.bounces >= 2)
         out = np.zeros((wi.shape[0], n))
