@@ -768,7 +768,9 @@ def test_compiled_traced_walk_matches_numpy(max_bounces):
     from brdftab.models.pyramid import _traced_walk
 
     rng = np.random.default_rng(max_bounces)
-    wi = np.concatenate([_random_dirs(rng, 400, min_z=1e-3), [[0.0, 0.0, 1.0]], _v(45, 25)[None, :]])
+    near_normal = np.concatenate([rng.normal(scale=0.05, size=(100, 2)), np.ones((100, 1))], axis=1)
+    near_normal /= np.linalg.norm(near_normal, axis=1, keepdims=True)     # (many sequences each)
+    wi = np.concatenate([_random_dirs(rng, 400, min_z=1e-3), [[0.0, 0.0, 1.0]], _v(45, 25)[None, :], near_normal])
     m = models.create("pyramid-microfacet", facet_roughness=0.015, phi0=0.3, max_bounces=max_bounces)
     got = _traced_walk(m.dist, wi, max_bounces)
     with numpy_reference():

@@ -934,33 +934,30 @@ def _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front) -> _Walk:
 
     nu = wi.shape[0]
     theta_w, phi_w = tab.angles(_facet_frame(dist, wi))
-    args = (np.ascontiguousarray(wi), np.ascontiguousarray(c0), np.ascontiguousarray(p_first),
-            np.ascontiguousarray(front), theta_w, phi_w, *tab.ratio_arrays(hit=True),
-            dist.normals, float(dist.alpha), mb, tab.depth)
+    rows_args = (np.ascontiguousarray(wi), np.ascontiguousarray(c0), np.ascontiguousarray(p_first),
+                 np.ascontiguousarray(front), theta_w, phi_w)
+    args = (*tab.ratio_arrays(hit=True), dist.normals, float(dist.alpha), mb, tab.depth)
     n_ex = np.zeros(nu, np.int64)
     n_in = np.zeros(nu, np.int64)
     first_cont = np.zeros((nu, 4))
-    dummy = (np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros((0, mb), np.int64),
-             np.zeros((0, mb)), np.zeros(0), np.zeros((0, mb)), np.zeros(0, np.int64))
-    zero = np.zeros(nu + 1, np.int64)
+    max_ex, max_in = 2 * (3 ** mb - 1), 4 * 3 ** (mb - 1)      # states of one incidence direction, at most
 
-    def count(lo, hi):
-        _traced_walk_rows(*(a[lo:hi] for a in args[:6]), *args[6:], False, n_ex[lo:hi], n_in[lo:hi],
-                          first_cont[lo:hi], zero, zero, *dummy)
+    def run(lo, hi):
+        parts = []
+        while lo < hi:
+            cap_e, cap_q = max(16 * (hi - lo), max_ex), max(8 * (hi - lo), max_in)
+            bufs = (np.empty(cap_e, np.int64), np.empty((cap_e, 3)), np.empty(cap_e), np.empty(cap_e, np.int64),
+                    np.empty((cap_e, mb), np.int64), np.empty((cap_e, mb)), np.empty(cap_q), np.empty((cap_q, mb)),
+                    np.empty(cap_q, np.int64))
+            done, ne, nq = _traced_walk_rows(*(x[lo:hi] for x in rows_args), *args, n_ex[lo:hi], n_in[lo:hi],
+                                             first_cont[lo:hi], *bufs)
+            parts.append(tuple(x[:ne] for x in bufs[:6]) + tuple(x[:nq] for x in bufs[6:]))
+            lo += done
+        return parts
 
-    parallel_rows(count, nu, min_rows=1024)
-    ex_start = np.concatenate([[0], np.cumsum(n_ex)])
-    in_start = np.concatenate([[0], np.cumsum(n_in)])
-    m, q = int(ex_start[-1]), int(in_start[-1])
-    bufs = (np.empty(m, np.int64), np.empty((m, 3)), np.empty(m), np.empty(m, np.int64), np.full((m, mb), -1),
-            np.full((m, mb), np.nan), np.empty(q), np.full((q, mb), np.nan), np.empty(q, np.int64))
-
-    def fill(lo, hi):
-        _traced_walk_rows(*(a[lo:hi] for a in args[:6]), *args[6:], True, n_ex[lo:hi], n_in[lo:hi],
-                          first_cont[lo:hi], ex_start[lo:hi], in_start[lo:hi], *bufs)
-
-    parallel_rows(fill, nu, min_rows=1024)
-    depth, dirs, prob, _, faces, cosines, in_prob, in_cosines, in_faces0 = bufs
+    parts = [p for chunk in parallel_rows(run, nu, min_rows=1024) for p in chunk]
+    depth, dirs, prob, _, faces, cosines, in_prob, in_cosines, in_faces0 = (
+        np.concatenate([p[j] for p in parts]) for j in range(9))
     order = np.argsort(depth, kind="stable")
     u = np.repeat(np.arange(nu), n_ex)
     in_u = np.repeat(np.arange(nu), n_in)
@@ -970,13 +967,16 @@ def _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front) -> _Walk:
 
 @kernel
 def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, esc_parts, hit_parts, F, alpha, mb,
-                      depth_t, fill, n_ex, n_in, first_cont,
-                      ex_start, in_start, ex_depth, ex_dirs, ex_prob, ex_code, ex_faces, ex_cos, in_prob, in_cos,
-                      in_face0):
+                      depth_t, n_ex, n_in, first_cont, ex_depth, ex_dirs, ex_prob, ex_code, ex_faces, ex_cos, in_prob,
+                      in_cos, in_face0):
     """The states of :func:`_traced_walk` per incidence direction ``wi[u]``, breadth first in
-    the numpy code's order. First call (``fill`` False): count the exits and inside states
-    (``n_ex``, ``n_in``) and fill ``first_cont``; second call: write them from ``ex_start[u]``,
-    ``in_start[u]``."""
+    the numpy code's order: the exits and the states still inside written one row after the
+    other (``n_ex[u]``, ``n_in[u]`` of them), ``first_cont`` filled. Stops before a row whose
+    states might not fit in the buffers; returns (rows done, exits written, inside written)."""
+    max_ex = 2 * (3 ** mb - 1)
+    max_in = 4 * 3 ** (mb - 1)
+    e = 0
+    q = 0
     cap = 4
     for _ in range(1, mb):
         cap *= 3
@@ -996,6 +996,8 @@ def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, 
     p_hit = np.empty(4)
     w_hit = np.empty(4)
     for u in range(wi.shape[0]):
+        if e + max_ex > ex_prob.shape[0] or q + max_in > in_prob.shape[0]:
+            return u, e, q
         op, cell, w00, w01, w10, w11 = cell_of(theta_w[u], phi_w[u], theta, phi)
         ns = 0
         for k in range(4):
@@ -1011,8 +1013,6 @@ def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, 
                 sf[ns, 0] = k
                 sk[ns, 0] = c0[u, k]
                 ns += 1
-        e = ex_start[u]
-        q = in_start[u]
         ne = 0
         nq = 0
         for depth in range(1, mb + 1):
@@ -1072,24 +1072,22 @@ def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, 
                         cont = mass
                     first_cont[u, sf[i, 0]] = 0.0 if none else cont
                 if esc > MIN_PROBABILITY:
-                    if fill:
-                        ex_depth[e + ne] = depth
-                        for j in range(3):
-                            ex_dirs[e + ne, j] = sd[i, j]
-                        ex_prob[e + ne] = esc
-                        ex_code[e + ne] = code
-                        for j in range(mb):
-                            ex_faces[e + ne, j] = sf[i, j]
-                            ex_cos[e + ne, j] = sk[i, j]
+                    ex_depth[e + ne] = depth
+                    for j in range(3):
+                        ex_dirs[e + ne, j] = sd[i, j]
+                    ex_prob[e + ne] = esc
+                    ex_code[e + ne] = code
+                    for j in range(mb):
+                        ex_faces[e + ne, j] = sf[i, j]
+                        ex_cos[e + ne, j] = sk[i, j]
                     ne += 1
                 go = cont > MIN_PROBABILITY and not none
                 if depth == mb:
                     if go:
-                        if fill:
-                            in_prob[q + nq] = cont
-                            for j in range(mb):
-                                in_cos[q + nq, j] = sk[i, j]
-                            in_face0[q + nq] = sf[i, 0]
+                        in_prob[q + nq] = cont
+                        for j in range(mb):
+                            in_cos[q + nq, j] = sk[i, j]
+                        in_face0[q + nq] = sf[i, 0]
                         nq += 1
                     continue
                 if not go:
@@ -1117,9 +1115,11 @@ def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, 
             sf, nf = nf, sf
             sk, nk = nk, sk
             ns = nn
-        if not fill:
-            n_ex[u] = ne
-            n_in[u] = nq
+        n_ex[u] = ne
+        n_in[u] = nq
+        e += ne
+        q += nq
+    return wi.shape[0], e, q
 
 
 def _run_walk(dist: PyramidDistribution, wi, max_bounces: int, walk: str) -> _Walk:
