@@ -103,13 +103,14 @@ MIN_PARALLEL_ROWS = 1 << 15
 _POOL: list = []
 
 
-def parallel_rows(fn, m: int):
+def parallel_rows(fn, m: int, min_rows: int = MIN_PARALLEL_ROWS):
     """Call ``fn(lo, hi)`` over ``[0, m)`` split into one contiguous range per thread, in a
     pool of :func:`threads` threads (the kernels release the GIL), and return the results in
-    order. Kernels are compiled serial (``parallel=False``): they compile in about half the
+    order (on the calling thread alone below ``min_rows`` rows: kernels whose rows cost much
+    more than a pair's evaluation pass fewer). Kernels are compiled serial (``parallel=False``): they compile in about half the
     time of numba's parallel loops, and the threads here give the same speed-up."""
     t = threads()
-    if t == 1 or m < MIN_PARALLEL_ROWS:
+    if t == 1 or m < min_rows:
         return [fn(0, m)]
     if not _POOL or _POOL[0][0] != t:
         from concurrent.futures import ThreadPoolExecutor

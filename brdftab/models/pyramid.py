@@ -164,6 +164,14 @@ With silicon's Fresnel (n + ik = 3.882 + 0.019i) the total reflectance agrees wi
 (tracer / model: 0.097 / 0.095 at normal incidence, 0.206 / 0.207 at 45°/0°, 0.203 / 0.204 at
 45°/25°).
 
+Compiled evaluation. The per-pair and per-incidence work of ``eval`` is compiled (numba, see
+:mod:`brdftab._jit`): the walk table's interpolation, the visible areas, the traced walk's
+sequences, the facet lobes' energies (the coarse rule), the traced single-bounce term and the
+exit lobes' sums; the Smith walks' sequences, the fine rule and Fresnel stay numpy. Inside
+:func:`brdftab.brdf.numpy_reference` the numpy code runs throughout; the two agree to 2e-12
+relative (tests: numpy's exp and scipy's erf differ from libm's in the last digit, and the
+walk's share P_k − E_k of a facet whose lobe sends out most magnifies it).
+
 Limits: equal pyramid heights only; random heights (the Procel distribution of the thesis'
 §4.1) are future work, as are the bevelled edges of real pyramids. The surface is fully
 covered (no flat floor). Incidence directions point toward the source, so "45°/25°" is a
@@ -172,20 +180,23 @@ source 45° above the surface in the azimuth 25° from a face normal's.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.special import erf, erfc
 
+from .._jit import device, kernel
 from ..brdf import BRDF, Model
 from ..errors import ParameterError
 from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from . import pyramid_walk
+from .pyramid_walk import cell_of, ratio_in_cell, ratio_one
 from ._registry import register
 from .combinators import Sum
-from .distributions import d_beckmann
+from .distributions import beckmann_D_scalar, d_beckmann
 from .microfacet import ComposedParams
 
 __all__ = ["THETA_P", "FACET_WEIGHT", "facet_normals", "visible_area", "PyramidDistribution", "PyramidShadowing",
@@ -229,6 +240,10 @@ def visible_area(c, alpha):
     c = np.asarray(c, float)
     shape = c.shape
     c = c.reshape(-1)
+    if pyramid_walk.compiled():
+        out = np.empty(c.shape)
+        _visible_area_rows(np.ascontiguousarray(c), float(alpha), out)
+        return out.reshape(shape)
     out = np.maximum(c, 0.0)
     s = np.sqrt(np.maximum(1.0 - c * c, 0.0))
     near = np.abs(c) < 6.0 * alpha * s
@@ -237,6 +252,23 @@ def visible_area(c, alpha):
         a = cn / (alpha * sn)
         out[near] = 0.5 * cn * (1.0 + erf(a)) + alpha * sn * np.exp(-a * a) / (2.0 * _SQRT_PI)
     return out.reshape(shape)
+
+
+@device
+def _visible_area1(c, alpha):
+    """:func:`visible_area` of one cosine."""
+    out = c if not c < 0.0 else 0.0
+    s = math.sqrt(max(1.0 - c * c, 0.0))
+    if abs(c) < 6.0 * alpha * s:
+        a = c / (alpha * s)
+        out = 0.5 * c * (1.0 + math.erf(a)) + alpha * s * math.exp(-a * a) / (2.0 * _SQRT_PI)
+    return out
+
+
+@kernel
+def _visible_area_rows(c, alpha, out):
+    for i in range(c.shape[0]):
+        out[i] = _visible_area1(c[i], alpha)
 
 
 def _lobe(cos_rho, beta):
@@ -486,6 +518,142 @@ def _facet_rule(dist, wi, k, level):
     return tuple(np.concatenate([q[j] for q in parts]) for j in range(4))
 
 
+# The compiled facet-lobe rule: _facet_rays, _facet_nodes and SingleBounce.own_facet fused, one
+# (incidence, facet) pair at a time, summing the nodes in the order numpy's bincount does.
+
+#: Forms of G in the compiled facet energies: the traced walk's, height-correlated, uncorrelated.
+_G_TRACED, _G_CORRELATED, _G_UNCORRELATED = 0, 1, 2
+
+
+@device
+def _projected_area1(wx, wy, wz, normals, alpha):
+    """:meth:`PyramidDistribution.projected_area` of one direction."""
+    tot = 0.0
+    for j in range(4):
+        tot += FACET_WEIGHT * _visible_area1(wx * normals[j, 0] + wy * normals[j, 1] + wz * normals[j, 2], alpha)
+    return tot
+
+
+@device
+def _root_or(r, top):
+    return r if (math.isfinite(r) and r > 0.0 and r < top) else top
+
+
+@device
+def _ray_roots(wi, fr, a, psi, cf, c1, c2, top, roots):
+    """The cuts of one ray of :func:`_facet_rays` into ``roots[4]``; returns (q0, q1, q2, ⟨ωi, v⟩,
+    v_z)."""
+    cv = math.cos(psi) * c1 + math.sin(psi) * c2
+    fz = fr[2, 2]
+    vz = math.cos(psi) * fr[0, 2]
+    iz = wi[2]
+    q0 = 2.0 * cf * fz - iz
+    q1 = 2.0 * a * (cf * vz + cv * fz)
+    q2 = a * a * (2.0 * cv * vz - iz)
+    disc = math.sqrt(q1 * q1 - 4.0 * q0 * q2) if q1 * q1 - 4.0 * q0 * q2 >= 0.0 else math.nan
+    roots[0] = _root_or(-cf / (a * cv), top)
+    roots[1] = _root_or(-fz / (a * vz), top)
+    roots[2] = _root_or((-q1 - disc) / (2.0 * q2), top)
+    roots[3] = _root_or((-q1 + disc) / (2.0 * q2), top)
+    return q0, q1, q2, cv, vz
+
+
+@kernel
+def _facet_energy_rows(wi, kk, lam_i, r_i, frames, normals, alpha, g_form, n_whole, n_cut, gx, gw, t_edges,
+                       rot_c, rot_s, theta, phi, esc_perm, flat, out):
+    """``out[P]``: :meth:`SingleBounce.facet_energy` (grey) of the pairs (``wi[P, 3]``, facet
+    ``kk[P]``) given Λ(ωi) ``lam_i[P]`` and, for the traced G, r_k(ωi) ``r_i[P]``; the rule of
+    :func:`_facet_rule` (``n_whole``/``n_cut`` azimuths, Gauss–Legendre ``gx``, ``gw`` on [0, 1],
+    panel edges ``t_edges``), the walk table's escape parts for r_k(ωo)."""
+    a = alpha
+    ne = t_edges.shape[0]
+    top = t_edges[ne - 1]
+    roots = np.empty(4)
+    edges = np.empty(ne + 4)
+    for p in range(wi.shape[0]):
+        k = kk[p]
+        fr = frames[k]
+        w = wi[p]
+        cf = w[0] * fr[2, 0] + w[1] * fr[2, 1] + w[2] * fr[2, 2]
+        c1 = w[0] * fr[0, 0] + w[1] * fr[0, 1] + w[2] * fr[0, 2]
+        c2 = w[0] * fr[1, 0] + w[1] * fr[1, 1] + w[2] * fr[1, 2]
+        n_psi = n_whole
+        for r in range(n_whole):
+            psi = 2.0 * np.pi * (r + 0.5) / n_whole
+            _ray_roots(w, fr, a, psi, cf, c1, c2, top, roots)
+            if roots[0] < top or roots[2] < top or roots[3] < top:
+                n_psi = n_cut
+                break
+        g1i = 1.0 / (1.0 + lam_i[p])
+        acc = 0.0
+        for r in range(n_psi):
+            psi = 2.0 * np.pi * (r + 0.5) / n_psi
+            q0, q1, q2, cv, vz = _ray_roots(w, fr, a, psi, cf, c1, c2, top, roots)
+            for j in range(ne):
+                edges[j] = t_edges[j]
+            for j in range(4):
+                edges[ne + j] = roots[j]
+            edges.sort()
+            cp, sp = math.cos(psi), math.sin(psi)
+            for j in range(ne + 3):
+                lo, hi = edges[j], edges[j + 1]
+                mid = 0.5 * (lo + hi)
+                if not (hi > lo and cf + a * mid * cv > 0.0 and fr[2, 2] + a * mid * vz > 0.0
+                        and q0 + (q1 + q2 * mid) * mid > 0.0):
+                    continue
+                for g in range(gx.shape[0]):
+                    t = lo + (hi - lo) * gx[g]
+                    wt = (hi - lo) * gw[g]
+                    rr = a * t
+                    inv = 1.0 / math.sqrt(1.0 + rr * rr)
+                    hx = (fr[2, 0] + rr * (cp * fr[0, 0] + sp * fr[1, 0])) * inv
+                    hy = (fr[2, 1] + rr * (cp * fr[0, 1] + sp * fr[1, 1])) * inv
+                    hz = (fr[2, 2] + rr * (cp * fr[0, 2] + sp * fr[1, 2])) * inv
+                    c = hx * w[0] + hy * w[1] + hz * w[2]
+                    ox = 2.0 * c * hx - w[0]
+                    oy = 2.0 * c * hy - w[1]
+                    oz = 2.0 * c * hz - w[2]
+                    if not (c > 0.0 and oz > 1e-12):
+                        continue
+                    dwh = wt * (2.0 * np.pi / n_psi) * a * a * t * inv ** 3.0
+                    weight = 4.0 * c * dwh
+                    # own_facet at (ωi, ωo)
+                    bx, by, bz = w[0] + ox, w[1] + oy, w[2] + oz
+                    norm = math.sqrt(bx * bx + by * by + bz * bz)
+                    bx, by, bz = bx / norm, by / norm, bz / norm
+                    if not bz > 0.0:
+                        continue
+                    lx = fr[0, 0] * bx + fr[0, 1] * by + fr[0, 2] * bz
+                    ly = fr[1, 0] * bx + fr[1, 1] * by + fr[1, 2] * bz
+                    lz = fr[2, 0] * bx + fr[2, 1] * by + fr[2, 2] * bz
+                    dk = _beckmann1(lx, ly, lz, a) * FACET_WEIGHT
+                    area_o = _projected_area1(ox, oy, oz, normals, a)
+                    if g_form == _G_TRACED:
+                        g1o = min(1.0, oz / area_o) if oz > 0.0 else 0.0
+                        r_o = ratio_one(rot_c * ox + rot_s * oy, rot_c * oy - rot_s * ox, oz, k, theta, phi,
+                                        esc_perm, flat)
+                        gg = min(g1i * g1o * math.sqrt(r_i[p] * r_o), min(g1i, g1o))
+                    else:
+                        lam_o = max(area_o / oz - 1.0, 0.0) if oz > 0.0 else math.inf
+                        if g_form == _G_CORRELATED:
+                            gg = 1.0 / (1.0 + lam_i[p] + lam_o)
+                        else:
+                            gg = 1.0 / ((1.0 + lam_i[p]) * (1.0 + lam_o))
+                    acc += dk * gg / (4.0 * w[2]) * weight
+        out[p] = acc
+
+
+@device
+def _beckmann1(lx, ly, lz, a):
+    """:func:`d_beckmann` of an isotropic lobe, one local normal."""
+    if lz <= 0.0:
+        return 0.0
+    c2 = lz * lz
+    u = lx / a
+    v = ly / a
+    return math.exp(-(u * u + v * v) / c2) / (np.pi * a * a * c2 * c2)
+
+
 def _exit_nodes(e, beta):
     """A product rule in the gnomonic plane of exit ``e``: x (towards the zenith) Gauss–Legendre
     panels from the horizon (x = −tanε, exactly) or −6.4β to 6.4β, y Gauss–Hermite."""
@@ -693,6 +861,8 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
     area = dist.facet_areas(wi)
     p_first = area / area.sum(axis=1, keepdims=True)
     front = (c0 > 0) & (p_first > MIN_PROBABILITY)
+    if pyramid_walk.compiled():
+        return _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front)
     r_esc, r_hit = tab.ratios(_facet_frame(dist, wi))
     r_esc, r_hit = np.nan_to_num(r_esc, nan=1.0), np.nan_to_num(r_hit, nan=1.0)
     first_cont = np.zeros((nu, 4))
@@ -756,6 +926,202 @@ def _traced_walk(dist: PyramidDistribution, wi, max_bounces: int, tab=None) -> _
                  faces[go, 0])
 
 
+def _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front) -> _Walk:
+    """:func:`_traced_walk` by the compiled :func:`_traced_walk_rows` (one incidence direction per
+    row, its states breadth first, the table's ratios of the sequences it reaches), in the numpy
+    code's order (bounce count, then incidence, then face sequence)."""
+    from .._jit import parallel_rows
+
+    nu = wi.shape[0]
+    theta_w, phi_w = tab.angles(_facet_frame(dist, wi))
+    rows_args = (np.ascontiguousarray(wi), np.ascontiguousarray(c0), np.ascontiguousarray(p_first),
+                 np.ascontiguousarray(front), theta_w, phi_w)
+    args = (*tab.ratio_arrays(hit=True), dist.normals, float(dist.alpha), mb, tab.depth)
+    n_ex = np.zeros(nu, np.int64)
+    n_in = np.zeros(nu, np.int64)
+    first_cont = np.zeros((nu, 4))
+    max_ex, max_in = 2 * (3 ** mb - 1), 4 * 3 ** (mb - 1)      # states of one incidence direction, at most
+
+    def run(lo, hi):
+        parts = []
+        while lo < hi:
+            cap_e, cap_q = max(16 * (hi - lo), max_ex), max(8 * (hi - lo), max_in)
+            bufs = (np.empty(cap_e, np.int64), np.empty((cap_e, 3)), np.empty(cap_e), np.empty(cap_e, np.int64),
+                    np.empty((cap_e, mb), np.int64), np.empty((cap_e, mb)), np.empty(cap_q), np.empty((cap_q, mb)),
+                    np.empty(cap_q, np.int64))
+            done, ne, nq = _traced_walk_rows(*(x[lo:hi] for x in rows_args), *args, n_ex[lo:hi], n_in[lo:hi],
+                                             first_cont[lo:hi], *bufs)
+            parts.append(tuple(x[:ne] for x in bufs[:6]) + tuple(x[:nq] for x in bufs[6:]))
+            lo += done
+        return parts
+
+    parts = [p for chunk in parallel_rows(run, nu, min_rows=1024) for p in chunk]
+    depth, dirs, prob, _, faces, cosines, in_prob, in_cosines, in_faces0 = (
+        np.concatenate([p[j] for p in parts]) for j in range(9))
+    order = np.argsort(depth, kind="stable")
+    u = np.repeat(np.arange(nu), n_ex)
+    in_u = np.repeat(np.arange(nu), n_in)
+    return _Walk(u[order], dirs[order], prob[order], depth[order], faces[order], cosines[order],
+                 in_u, in_prob, in_cosines, p_first, first_cont, np.where(front, 0.0, p_first), in_faces0)
+
+
+@kernel
+def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, esc_parts, hit_parts, F, alpha, mb,
+                      depth_t, n_ex, n_in, first_cont, ex_depth, ex_dirs, ex_prob, ex_code, ex_faces, ex_cos, in_prob,
+                      in_cos, in_face0):
+    """The states of :func:`_traced_walk` per incidence direction ``wi[u]``, breadth first in
+    the numpy code's order: the exits and the states still inside written one row after the
+    other (``n_ex[u]``, ``n_in[u]`` of them), ``first_cont`` filled. Stops before a row whose
+    states might not fit in the buffers; returns (rows done, exits written, inside written)."""
+    max_ex = 2 * (3 ** mb - 1)
+    max_in = 4 * 3 ** (mb - 1)
+    e = 0
+    q = 0
+    cap = 4
+    for _ in range(1, mb):
+        cap *= 3
+    sd = np.empty((cap, 3))
+    sm = np.empty(cap)
+    sc = np.empty(cap, np.int64)
+    sf = np.empty((cap, mb), np.int64)
+    sk = np.empty((cap, mb))
+    nd = np.empty((cap, 3))
+    nm = np.empty(cap)
+    nc = np.empty(cap, np.int64)
+    nf = np.empty((cap, mb), np.int64)
+    nk = np.empty((cap, mb))
+    cd = np.empty(4)
+    hit_w = np.empty(4)
+    split = np.empty(4)
+    p_hit = np.empty(4)
+    w_hit = np.empty(4)
+    for u in range(wi.shape[0]):
+        if e + max_ex > ex_prob.shape[0] or q + max_in > in_prob.shape[0]:
+            return u, e, q
+        op, cell, w00, w01, w10, w11 = cell_of(theta_w[u], phi_w[u], theta, phi)
+        ns = 0
+        for k in range(4):
+            if front[u, k]:
+                dot = -wi[u, 0] * F[k, 0] + -wi[u, 1] * F[k, 1] + -wi[u, 2] * F[k, 2]
+                for j in range(3):
+                    sd[ns, j] = -wi[u, j] - 2.0 * dot * F[k, j]
+                sm[ns] = p_first[u, k]
+                sc[ns] = k
+                for j in range(mb):
+                    sf[ns, j] = -1
+                    sk[ns, j] = math.nan
+                sf[ns, 0] = k
+                sk[ns, 0] = c0[u, k]
+                ns += 1
+        ne = 0
+        nq = 0
+        for depth in range(1, mb + 1):
+            nn = 0
+            for i in range(ns):
+                dz = sd[i, 2]
+                tot = 0.0
+                for j in range(4):
+                    cd[j] = sd[i, 0] * F[j, 0] + sd[i, 1] * F[j, 1] + sd[i, 2] * F[j, 2]
+                    hit_w[j] = FACET_WEIGHT * _visible_area1(-cd[j], alpha) if cd[j] < 0.0 else 0.0
+                    tot += hit_w[j]
+                none = not tot > 0.0
+                if dz > 0.0:
+                    g1 = 1.0 if none else min(dz / _projected_area1(sd[i, 0], sd[i, 1], dz, F, alpha), 1.0)
+                else:
+                    g1 = 0.0
+                for j in range(4):
+                    split[j] = 0.0 if none else hit_w[j] / tot
+                    p_hit[j] = (1.0 - g1) * split[j]
+                p_esc = g1
+                code = sc[i]
+                if depth <= depth_t:
+                    w_esc = p_esc * ratio_in_cell(op, cell, w00, w01, w10, w11, (4 ** depth - 4) // 3 + code,
+                                                  phi, perm, esc_parts)
+                    if depth < depth_t:
+                        s_hit = 0.0
+                        for j in range(4):
+                            w_hit[j] = p_hit[j] * ratio_in_cell(op, cell, w00, w01, w10, w11,
+                                                                (4 ** (depth + 1) - 4) // 3 + 4 * code + j, phi, perm,
+                                                                hit_parts)
+                            s_hit += w_hit[j]
+                        t_tot = w_esc + s_hit
+                        if t_tot > 0.0:
+                            p_esc = w_esc / t_tot
+                            for j in range(4):
+                                p_hit[j] = w_hit[j] / t_tot
+                    else:
+                        p_esc = p_esc if none else min(w_esc, 1.0)
+                        for j in range(4):
+                            p_hit[j] = (1.0 - p_esc) * split[j]
+                mass = sm[i]
+                esc = mass * p_esc
+                cont = mass - esc
+                if depth == 1:
+                    if cont <= 1e-9 * mass and not none:
+                        ssum = 0.0
+                        for j in range(4):
+                            ssum += p_hit[j]
+                        if ssum <= 0.0:
+                            for j in range(4):
+                                p_hit[j] = split[j]
+                        ssum = 0.0
+                        for j in range(4):
+                            ssum += p_hit[j]
+                        for j in range(4):
+                            p_hit[j] = p_hit[j] / ssum
+                        cont = mass
+                    first_cont[u, sf[i, 0]] = 0.0 if none else cont
+                if esc > MIN_PROBABILITY:
+                    ex_depth[e + ne] = depth
+                    for j in range(3):
+                        ex_dirs[e + ne, j] = sd[i, j]
+                    ex_prob[e + ne] = esc
+                    ex_code[e + ne] = code
+                    for j in range(mb):
+                        ex_faces[e + ne, j] = sf[i, j]
+                        ex_cos[e + ne, j] = sk[i, j]
+                    ne += 1
+                go = cont > MIN_PROBABILITY and not none
+                if depth == mb:
+                    if go:
+                        in_prob[q + nq] = cont
+                        for j in range(mb):
+                            in_cos[q + nq, j] = sk[i, j]
+                        in_face0[q + nq] = sf[i, 0]
+                        nq += 1
+                    continue
+                if not go:
+                    continue
+                for j in range(4):
+                    if not p_hit[j] > 0.0:
+                        continue
+                    nxt = mass * p_hit[j]
+                    if not nxt > MIN_PROBABILITY:
+                        continue
+                    dot = sd[i, 0] * F[j, 0] + sd[i, 1] * F[j, 1] + sd[i, 2] * F[j, 2]
+                    for x in range(3):
+                        nd[nn, x] = sd[i, x] - 2.0 * dot * F[j, x]
+                    nm[nn] = nxt
+                    nc[nn] = 4 * code + j
+                    for x in range(mb):
+                        nf[nn, x] = sf[i, x]
+                        nk[nn, x] = sk[i, x]
+                    nf[nn, depth] = j
+                    nk[nn, depth] = -cd[j]
+                    nn += 1
+            sd, nd = nd, sd
+            sm, nm = nm, sm
+            sc, nc = nc, sc
+            sf, nf = nf, sf
+            sk, nk = nk, sk
+            ns = nn
+        n_ex[u] = ne
+        n_in[u] = nq
+        e += ne
+        q += nq
+    return wi.shape[0], e, q
+
+
 def _run_walk(dist: PyramidDistribution, wi, max_bounces: int, walk: str) -> _Walk:
     """The walk called ``walk`` ('traced', 'height-correlated' or 'uncorrelated')."""
     if walk == "traced":
@@ -788,6 +1154,22 @@ def _share(w: _Walk, first_escape, rows=None) -> _Walk:
     lost = np.where(todo[:, None], np.where(go, 0.0, left), w.lost)
     return _Walk(w.u, w.dirs, prob, w.bounces, w.faces, w.cosines, w.in_u, in_prob, w.in_cosines,
                  w.p_first, w.first_cont, lost, w.in_faces0)
+
+
+def _distinct_rows(w):
+    """``np.unique(w, axis=0, return_inverse=True)`` (distinct rows, sorted, and each row's
+    index among them), found over the runs of equal rows when there are few (a grid's pairs
+    come in runs of one incidence direction; sorting every row is the slow part)."""
+    m = w.shape[0]
+    same = np.all(w[1:] == w[:-1], axis=1)
+    if same.all():
+        return w[:1].copy(), np.zeros(m, np.int64)
+    heads = np.flatnonzero(np.concatenate([[True], ~same]))
+    if 8 * heads.size < m:
+        uniq, at = np.unique(w[heads], axis=0, return_inverse=True)
+        return uniq, np.repeat(at.ravel(), np.diff(np.append(heads, m)))
+    uniq, inv = np.unique(w, axis=0, return_inverse=True)
+    return uniq, inv.ravel()
 
 
 def _fresnel_product(fres, cosines, lam, n):
@@ -874,10 +1256,35 @@ class SingleBounce(_Term):
         return dk * (g / (4.0 * wi[..., 2]))[..., None], 0.5 * norm
 
     def _eval(self, wi, wo, lam, n):
-        fk, cos_d = self.facet_terms(wi, wo)
-        base = fk.sum(axis=1) / wo[:, 2]
+        if self.walk == "traced" and pyramid_walk.compiled():
+            base, cos_d = self._traced_base(wi, wo)
+        else:
+            fk, cos_d = self.facet_terms(wi, wo)
+            base = fk.sum(axis=1) / wo[:, 2]
         f = self.fres.F(cos_d, lam, n)
         return base[:, None] * f if np.ndim(f) else np.repeat(base[:, None], n, axis=1)
+
+    def _traced_base(self, wi, wo):
+        """Σ_k f_k cosθo / cosθo (no Fresnel) and cos_d of :meth:`facet_terms` with the traced
+        walk's G, compiled (:func:`_traced_single_rows`; the table's angles from numpy)."""
+        from .._jit import parallel_rows
+
+        tab = pyramid_walk.table()
+        wi = np.ascontiguousarray(wi, dtype=float)
+        wo = np.ascontiguousarray(wo, dtype=float)
+        ti, pi = tab.angles(_facet_frame(self.dist, wi))
+        to, po = tab.angles(_facet_frame(self.dist, wo))
+        theta, phi, perm, flat = tab.ratio_arrays()
+        base = np.empty(wi.shape[0])
+        cos_d = np.empty(wi.shape[0])
+
+        def run(lo, hi):
+            _traced_single_rows(wi[lo:hi], wo[lo:hi], ti[lo:hi], pi[lo:hi], to[lo:hi], po[lo:hi], self.dist.frames,
+                                self.dist.normals, float(self.dist.alpha), theta, phi, perm, flat, base[lo:hi],
+                                cos_d[lo:hi])
+
+        parallel_rows(run, wi.shape[0])
+        return base, cos_d
 
     def own_facet(self, wi, wo, k, lam_i, r_i=None):
         """Grey f cosθo of facet k's lobe alone (no Fresnel) at pairs ``wi[N, 3]``, ``wo[N, 3]``,
@@ -895,13 +1302,21 @@ class SingleBounce(_Term):
             g = 1.0 / (1.0 + lam_i + lam_o) if self.correlated else 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
         return np.where(h[:, 2] > 0, dk * g / (4.0 * wi[:, 2]), 0.0), 0.5 * norm
 
-    def facet_energy(self, wi, lam=None, n=1, fresnel=False, fine=False):
+    def facet_energy(self, wi, lam=None, n=1, fresnel=False, fine=False, only=None):
         """∫ f_k cosθo dωo of each facet's lobe for ``wi[U, 3]``: [U, 4] (grey, no Fresnel) or
         with ``fresnel`` [U, 4, n]. ``fine``: the albedo rule's nodes (:data:`_FINE`); else the
-        coarse rule the walk uses (:data:`_COARSE`)."""
+        coarse rule the walk uses (:data:`_COARSE`). ``only`` [U, 4]: the facets wanted (the
+        others are left 0)."""
         wi = np.asarray(wi, float).reshape(-1, 3)
         nu = wi.shape[0]
-        uu, kk = np.nonzero(self.dist.facet_areas(wi) > MIN_PROBABILITY)
+        seen = self.dist.facet_areas(wi) > MIN_PROBABILITY
+        uu, kk = np.nonzero(seen if only is None else seen & only)
+        if not fresnel and not fine and pyramid_walk.compiled():
+            # (the fine rule stays numpy: bounce_fractions pairs it with its Fresnel-weighted twin,
+            # and the two sum to the incident energy to the last digits only by the same arithmetic)
+            out = np.zeros((nu, 4))
+            out[uu, kk] = self._facet_energy_compiled(wi[uu], kk, self.dist.lambda_(wi)[uu], _COARSE)
+            return out
         owner, wo, w, _ = _facet_rule(self.dist, wi[uu], kk, _FINE if fine else _COARSE)
         lam_i = self.dist.lambda_(wi)
         r_i = self.traced_ratio(wi[uu], kk)[owner] if self.walk == "traced" else None
@@ -916,6 +1331,36 @@ class SingleBounce(_Term):
         out = np.zeros((nu, 4, n))
         for ch in range(n):
             out[uu, kk, ch] = np.bincount(owner, val * fr[:, ch], minlength=uu.size)
+        return out
+
+    def _facet_energy_compiled(self, wi, k, lam_i, level):
+        """The grey energies of :meth:`facet_energy` of the pairs (``wi[P, 3]``, facet ``k[P]``)
+        given Λ(ωi) ``lam_i[P]``, by the compiled rule (:func:`_facet_energy_rows`)."""
+        from .._jit import parallel_rows
+
+        n_whole, n_cut, nodes, t_edges = level
+        gx, gw = gauss_legendre(nodes, 0.0, 1.0)
+        wi = np.ascontiguousarray(wi, dtype=float)
+        k = np.ascontiguousarray(k, dtype=np.int64)
+        lam_i = np.ascontiguousarray(lam_i, dtype=float)
+        if self.walk == "traced":
+            r_i = np.ascontiguousarray(self.traced_ratio(wi, k), dtype=float)
+            g_form = _G_TRACED
+        else:
+            r_i = np.ones(wi.shape[0])
+            g_form = _G_CORRELATED if self.correlated else _G_UNCORRELATED
+        theta, phi, esc_perm, flat = pyramid_walk.table().ratio_arrays()
+        out = np.empty(wi.shape[0])
+        dist = self.dist
+        args = (dist.frames, dist.normals, float(dist.alpha), g_form, n_whole, n_cut, np.ascontiguousarray(gx),
+                np.ascontiguousarray(gw), np.ascontiguousarray(t_edges, dtype=float), float(np.cos(dist.phi0)),
+                float(np.sin(dist.phi0)), theta, phi, esc_perm, flat)
+
+        def run(lo, hi):
+            _facet_energy_rows(wi[lo:hi], k[lo:hi], lam_i[lo:hi], r_i[lo:hi], *args, out[lo:hi])
+
+        # a pair's rule has hundreds of nodes: worth a thread from a few hundred pairs on
+        parallel_rows(run, wi.shape[0], min_rows=256)
         return out
 
     def albedo_rule(self, wi):
@@ -948,8 +1393,7 @@ class MultiBounce(_Term):
         return energy_grey[None, :] * _lobe(wo @ e.T, self.beta) / norm[None, :]
 
     def _eval(self, wi, wo, lam, n):
-        uniq, inv = np.unique(wi, axis=0, return_inverse=True)
-        inv = inv.ravel()
+        uniq, inv = _distinct_rows(wi)
         w = _run_walk(self.dist, uniq, self.max_bounces, self.walk_name)
         sel = np.flatnonzero(w.bounces >= 2)
         out = np.zeros((wi.shape[0], n))
@@ -959,6 +1403,8 @@ class MultiBounce(_Term):
         u, e = w.u[sel], w.dirs[sel]
         counts = np.bincount(u, minlength=uniq.shape[0])
         starts = np.concatenate([[0], np.cumsum(counts)[:-1]])
+        if pyramid_walk.compiled():
+            return self._lobes_compiled(wi, wo, uniq, inv, w, sel, starts, counts, lam, n)
         per_pair = counts[inv]
         # (pair, exit) entries near an exit, in bounded batches
         limit = 1 << 21
@@ -981,17 +1427,122 @@ class MultiBounce(_Term):
         if pair.size == 0:
             return out
         # the single-bounce energies only where a lobe is seen
-        rows = np.unique(u[ex])
-        w = _share(w, self.single.facet_energy(uniq[rows]), rows)
+        # (the energies of the facets that begin a seen exit's sequence: the others scale nothing here)
+        rows, at = np.unique(u[ex], return_inverse=True)
+        only = np.zeros((rows.size, 4), bool)
+        only[at.ravel(), w.faces[sel[ex], 0]] = True
+        w = _share(w, self.single.facet_energy(uniq[rows], only=only), rows)
         energy = w.prob[sel, None] * _fresnel_product(self.fres, w.cosines[sel], lam, n)
         val = _lobe(c, self.beta) / (_above_horizon(e[ex, 2], self.beta) * wo[pair, 2])
         for ch in range(n):
             out[:, ch] = np.bincount(pair, val * energy[ex, ch], minlength=wi.shape[0])
         return out
 
+    def _lobes_compiled(self, wi, wo, uniq, inv, w, sel, starts, counts, lam, n):
+        """The rest of :meth:`_eval` compiled: the exits each pair sees (:func:`_exits_seen`), the
+        facet energies of their rows, and the lobes' sum (:func:`_exit_lobe_rows`)."""
+        from .._jit import parallel_rows
+
+        m = wi.shape[0]
+        e = np.ascontiguousarray(w.dirs[sel])
+        wo = np.ascontiguousarray(wo)
+        inv = np.ascontiguousarray(inv, dtype=np.int64)
+        starts = np.ascontiguousarray(starts, dtype=np.int64)
+        counts = np.ascontiguousarray(counts, dtype=np.int64)
+        seen = np.zeros(e.shape[0], np.uint8)
+        cos_cut = float(self.cos_cut)
+
+        def mark(lo, hi):
+            _exits_seen(wo[lo:hi], inv[lo:hi], starts, counts, e, cos_cut, seen)
+
+        parallel_rows(mark, m)      # (threads mark the same exits with the same value)
+        out = np.zeros((m, n))
+        ex = np.flatnonzero(seen)
+        if ex.size == 0:
+            return out
+        u = w.u[sel]
+        rows, at = np.unique(u[ex], return_inverse=True)
+        only = np.zeros((rows.size, 4), bool)
+        only[at.ravel(), w.faces[sel[ex], 0]] = True
+        w = _share(w, self.single.facet_energy(uniq[rows], only=only), rows)
+        energy = np.zeros((e.shape[0], n))
+        energy[ex] = w.prob[sel[ex], None] * _fresnel_product(self.fres, w.cosines[sel[ex]], lam, n)
+        norm = _above_horizon(e[:, 2], self.beta)
+
+        def lobes(lo, hi):
+            _exit_lobe_rows(wo[lo:hi], inv[lo:hi], starts, counts, e, norm, energy, cos_cut, float(self.beta),
+                            out[lo:hi])
+
+        parallel_rows(lobes, m)
+        return out
+
     def albedo_rule(self, wi):
         """Outgoing directions and weights [sr] resolving every exit lobe for ``wi[3]``."""
         return _albedo_rule(self, np.asarray(wi, float), single=False, multi=True)
+
+
+@kernel
+def _traced_single_rows(wi, wo, ti, pi, to, po, frames, normals, alpha, theta, phi, perm, flat, base, cos_d):
+    """:meth:`SingleBounce.facet_terms` with the traced walk's G (:meth:`SingleBounce.traced_G`),
+    summed over the facets and divided by cosθo (``base``), and cos_d, per pair; ``ti``, ``pi``,
+    ``to``, ``po``: the table's angles of ωi and ωo (numpy's)."""
+    ri = np.empty(4)
+    ro = np.empty(4)
+    for m in range(wi.shape[0]):
+        hx, hy, hz = wi[m, 0] + wo[m, 0], wi[m, 1] + wo[m, 1], wi[m, 2] + wo[m, 2]
+        norm = math.sqrt(hx * hx + hy * hy + hz * hz)
+        hx, hy, hz = hx / norm, hy / norm, hz / norm
+        cos_d[m] = 0.5 * norm
+        # G1 of both directions (0 at and below the horizon)
+        wz = wi[m, 2]
+        g1i = min(1.0, wz / _projected_area1(wi[m, 0], wi[m, 1], wz, normals, alpha)) if wz > 0.0 else 0.0
+        oz = wo[m, 2]
+        g1o = min(1.0, oz / _projected_area1(wo[m, 0], wo[m, 1], oz, normals, alpha)) if oz > 0.0 else 0.0
+        op, cell, w00, w01, w10, w11 = cell_of(ti[m], pi[m], theta, phi)
+        for k in range(4):
+            ri[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
+        op, cell, w00, w01, w10, w11 = cell_of(to[m], po[m], theta, phi)
+        for k in range(4):
+            ro[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
+        tot = 0.0
+        for k in range(4):
+            fr = frames[k]
+            lx = fr[0, 0] * hx + fr[0, 1] * hy + fr[0, 2] * hz
+            ly = fr[1, 0] * hx + fr[1, 1] * hy + fr[1, 2] * hz
+            lz = fr[2, 0] * hx + fr[2, 1] * hy + fr[2, 2] * hz
+            dk = _beckmann1(lx, ly, lz, alpha) * FACET_WEIGHT if hz > 0.0 else 0.0
+            g = min(g1i * g1o * math.sqrt(ri[k] * ro[k]), min(g1i, g1o))
+            tot += dk * g / (4.0 * wz)
+        base[m] = tot / oz
+
+
+@kernel
+def _exits_seen(wo, inv, starts, counts, e, cos_cut, seen):
+    """Mark ``seen[x]`` the exits x (``e[X, 3]``, those of incidence u at ``starts[u]``, ``counts[u]``)
+    whose lobe reaches a pair's ``wo`` (cosine above ``cos_cut``; pair i has incidence ``inv[i]``)."""
+    for i in range(wo.shape[0]):
+        a = starts[inv[i]]
+        for x in range(a, a + counts[inv[i]]):
+            if wo[i, 0] * e[x, 0] + wo[i, 1] * e[x, 1] + wo[i, 2] * e[x, 2] > cos_cut:
+                seen[x] = 1
+
+
+@kernel
+def _exit_lobe_rows(wo, inv, starts, counts, e, norm, energy, cos_cut, beta, out):
+    """``out[i]`` = Σ over the exits x of pair i's incidence whose lobe reaches ``wo[i]`` of
+    L(⟨ωo, e_x⟩) / (N(e_x) cosθo) · energy[x] (:meth:`MultiBounce._eval`, in its order)."""
+    nc = out.shape[1]
+    for i in range(wo.shape[0]):
+        a = starts[inv[i]]
+        for x in range(a, a + counts[inv[i]]):
+            c = wo[i, 0] * e[x, 0] + wo[i, 1] * e[x, 1] + wo[i, 2] * e[x, 2]
+            if not c > cos_cut:
+                continue
+            t2 = (1.0 - c * c) / (c * c * beta * beta)
+            lobe = math.exp(-t2) / (np.pi * beta * beta * c * c * c) if c > 0.0 else 0.0
+            val = lobe / (norm[x] * wo[i, 2])
+            for ch in range(nc):
+                out[i, ch] += val * energy[x, ch]
 
 
 # --------------------------------------------------------------------------------------------

@@ -15,15 +15,21 @@ about the diagonal), the fractions of the rays that
 
 :class:`WalkTable` interpolates them bilinearly in (θ, φ) (θ clamped to the last node),
 relative to the uncorrelated walk's branching (:meth:`WalkTable.ratios`), and relabels the
-faces of the node's symmetry image back to the query's.
+faces of the node's symmetry image back to the query's. The interpolation is compiled
+(:func:`interpolate_rows`; :func:`ratio_one` for the kernels of :mod:`~brdftab.models.pyramid`);
+inside :func:`brdftab.brdf.numpy_reference` the numpy code runs instead (the parity tests
+compare the two).
 """
 
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+
+from .._jit import device, kernel
 
 TABLE = Path(__file__).with_name("pyramid_walk.npz")
 
@@ -182,6 +188,47 @@ class WalkTable:
         return j, t
 
     def _interpolate(self, w, arrays, columns):
+        """Bilinear interpolation of ``arrays`` [θ, φ, n_codes, ...] at unit directions ``w[U, 3]``
+        for the query's codes ``columns`` (see :meth:`_interpolate_numpy`), compiled
+        (:func:`interpolate_rows`) unless inside :func:`brdftab.brdf.numpy_reference`."""
+        if not compiled():
+            return self._interpolate_numpy(w, arrays, columns)
+        theta_w, phi_w = self.angles(w)
+        columns = np.ascontiguousarray(columns, dtype=np.int64)                # [U, C] or [1, C]
+        out = []
+        for arr in arrays:
+            extra = arr.shape[3:]
+            flat = self._flat(arr)
+            res = np.empty((w.shape[0], columns.shape[1], flat.shape[1]))
+            interpolate_rows(theta_w, phi_w, columns, flat, self.theta, self.phi, self.esc_perm, res)
+            out.append(res.reshape((w.shape[0], columns.shape[1]) + extra))
+        return out
+
+    def _flat(self, arr):
+        """``arr`` [θ, φ, n_codes, ...] as a C-contiguous [θ φ n_codes, rest] array (kept for the
+        arrays of :meth:`_parts`, which live as long as the table)."""
+        cache = self.__dict__.setdefault("_flat_cache", {})
+        key = id(arr)
+        if key not in cache or cache[key][0] is not arr:
+            cache[key] = (arr, np.ascontiguousarray(arr.reshape(arr.shape[0] * arr.shape[1] * arr.shape[2], -1),
+                                                    dtype=float))
+        return cache[key][1]
+
+    def ratio_arrays(self, hit=False):
+        """What the compiled kernels need to evaluate the ratios of one code (:func:`ratio_at`):
+        (θ nodes, φ nodes, code maps, flat escape parts[, flat hit parts])."""
+        parts = self._parts()
+        return (self.theta, self.phi, np.ascontiguousarray(self.esc_perm, dtype=np.int64), self._flat(parts[0])) \
+            + ((self._flat(parts[1]),) if hit else ())
+
+    @staticmethod
+    def angles(w):
+        """Polar angles and azimuths of unit directions ``w[U, 3]`` as :meth:`_interpolate` takes
+        them (the compiled kernels take these, computed by numpy)."""
+        w = np.asarray(w, float).reshape(-1, 3)
+        return np.arccos(np.clip(w[:, 2], -1.0, 1.0)), np.arctan2(w[:, 1], w[:, 0])
+
+    def _interpolate_numpy(self, w, arrays, columns):
         """Bilinear interpolation of ``arrays`` [θ, φ, n_codes, ...] at unit directions
         ``w[U, 3]`` (azimuths from a face normal's) for the query's codes ``columns``:
         [U, len(columns), ...] each (the node's codes are the query's relabelled by the symmetry
@@ -221,6 +268,122 @@ class WalkTable:
         with np.errstate(divide="ignore", invalid="ignore"):
             r = [np.where(p[..., 1] > 0, p[..., 0] / p[..., 1], np.nan) for p in parts]
         return r[0], (r[1] if hit else None)
+
+
+def compiled() -> bool:
+    """Whether the compiled helpers run (False inside :func:`brdftab.brdf.numpy_reference`)."""
+    from ..brdf import _COMPILED
+
+    return _COMPILED[-1]
+
+
+# --------------------------------------------------------------------------------------------
+# Compiled interpolation: the arithmetic of WalkTable._interpolate_numpy, one direction at a time
+
+
+@device
+def _np_mod(a, b):
+    """numpy's ``np.mod`` of floats (b > 0): fmod, then shifted into [0, b)."""
+    m = np.fmod(a, b)
+    if m != 0.0 and m < 0.0:
+        m += b
+    return m
+
+
+@device
+def _np_floordiv(a, b):
+    """numpy's ``a // b`` of floats (b > 0), which rounds the quotient as its divmod does."""
+    m = np.fmod(a, b)
+    div = (a - m) / b
+    if m != 0.0 and m < 0.0:
+        div -= 1.0
+    if div == 0.0:
+        return 0.0
+    f = math.floor(div)
+    if div - f > 0.5:
+        f += 1.0
+    return f
+
+
+@device
+def _axis(grid, x):
+    """:meth:`WalkTable._weights` of one value: (index, weight)."""
+    n = grid.shape[0]
+    x = min(max(x, grid[0]), grid[n - 1])
+    lo, hi = 0, n
+    while lo < hi:                      # searchsorted(side="right")
+        mid = (lo + hi) // 2
+        if grid[mid] <= x:
+            lo = mid + 1
+        else:
+            hi = mid
+    j = min(max(lo - 1, 0), n - 2)
+    return j, (x - grid[j]) / (grid[j + 1] - grid[j])
+
+
+@device
+def cell_of(theta_w, phi_w, theta, phi):
+    """Symmetry index, flat index of the (θ, φ) cell's first node and the bilinear weights of a
+    direction of polar angle ``theta_w`` and azimuth ``phi_w`` (from a face normal's;
+    :func:`domain_op`)."""
+    quarter = 0.5 * np.pi
+    p = _np_mod(phi_w, 2.0 * np.pi)
+    r = min(int(_np_floordiv(p, quarter)), 3)
+    p = p - r * quarter
+    m = p > 0.5 * quarter
+    op = 2 * r + (1 if m else 0)
+    if m:
+        p = quarter - p
+    i, s = _axis(theta, theta_w)
+    j, t = _axis(phi, p)
+    return op, i * phi.shape[0] + j, (1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t
+
+
+@kernel
+def interpolate_rows(theta_w, phi_w, columns, flat, theta, phi, esc_perm, out):
+    """``out[U, C, P]``: ``flat`` [θ φ n_codes, P] interpolated at directions of polar angles
+    ``theta_w[U]`` and azimuths ``phi_w[U]`` for the query codes ``columns`` [U, C] (or [1, C]
+    for every direction). (The angles come from numpy: its arctan2 and libm's differ in the
+    last digit, which the weights next to a node whose value is 0 would magnify.)"""
+    nc = esc_perm.shape[1]
+    step = phi.shape[0] * nc
+    for u in range(theta_w.shape[0]):
+        op, cell, w00, w01, w10, w11 = cell_of(theta_w[u], phi_w[u], theta, phi)
+        cu = u if columns.shape[0] > 1 else 0
+        for c in range(columns.shape[1]):
+            b = cell * nc + esc_perm[op, columns[cu, c]]
+            for q in range(flat.shape[1]):
+                out[u, c, q] = (((0.0 + w00 * flat[b, q]) + w01 * flat[b + nc, q]) + w10 * flat[b + step, q]) \
+                    + w11 * flat[b + step + nc, q]
+
+
+@device
+def ratio_at(theta_w, phi_w, code, theta, phi, esc_perm, flat):
+    """A ratio of :meth:`WalkTable.ratios` for one query ``code`` at a direction of polar angle
+    ``theta_w`` and azimuth ``phi_w`` (``flat``: :meth:`WalkTable.ratio_arrays`' escape parts,
+    or the hit parts), 1 where no node near it sees a ray on the branch (NaN there)."""
+    op, cell, w00, w01, w10, w11 = cell_of(theta_w, phi_w, theta, phi)
+    return ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat)
+
+
+@device
+def ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat):
+    """:func:`ratio_at` given the direction's cell (:func:`cell_of`)."""
+    nc = esc_perm.shape[1]
+    step = phi.shape[0] * nc
+    b = cell * nc + esc_perm[op, code]
+    num = (((0.0 + w00 * flat[b, 0]) + w01 * flat[b + nc, 0]) + w10 * flat[b + step, 0]) + w11 * flat[b + step + nc, 0]
+    den = (((0.0 + w00 * flat[b, 1]) + w01 * flat[b + nc, 1]) + w10 * flat[b + step, 1]) + w11 * flat[b + step + nc, 1]
+    if den > 0.0:
+        return num / den
+    return 1.0
+
+
+@device
+def ratio_one(wx, wy, wz, code, theta, phi, esc_perm, flat):
+    """:func:`ratio_at` of the direction (wx, wy, wz) (its angles by libm, which may differ from
+    numpy's in the last digit)."""
+    return ratio_at(math.acos(min(max(wz, -1.0), 1.0)), math.atan2(wy, wx), code, theta, phi, esc_perm, flat)
 
 
 @lru_cache(maxsize=1)
