@@ -48,6 +48,8 @@ SPHERICAL_SPECULAR = 2
 FOLDS = {"none": 0, "reciprocity": 1, "bilateral": 2, "reciprocity+bilateral": 3}
 # axis kinds
 PLAIN, PERIODIC, WRAPPED = 0, 1, 2
+# validity modes of table_eval
+ALL_VALID, NODE_FLAG, CHANNEL_FLAGS = 0, 1, 2
 # outside modes
 OUTSIDE = {"nan": 0, "raise": 1, "clamp": 2}
 
@@ -99,40 +101,57 @@ def _load(wi, wo, i, check):
     return ix, iy, iz, ox, oy, oz, 0
 
 
+#: Rows copied at once when directions arrive as views that are not C-contiguous (a direction
+#: broadcast against many): the kernels compile for one array layout, and the copies stay small.
+CHUNK = 1 << 16
+
+
+def contiguous_pairs(wi, wo):
+    """``(rows, wi, wo)`` covering all pairs with C-contiguous float64 ``(k, 3)`` arrays: the
+    arrays themselves when they are, else copies of bounded chunks."""
+    m = wi.shape[0]
+    if wi.flags.c_contiguous and wo.flags.c_contiguous and wi.dtype == np.float64 and wo.dtype == np.float64:
+        yield slice(0, m), wi, wo
+        return
+    for s in range(0, m, CHUNK):
+        rows = slice(s, min(m, s + CHUNK))
+        yield rows, np.ascontiguousarray(wi[rows], np.float64), np.ascontiguousarray(wo[rows], np.float64)
+
+
 # ------------------------------------------------------------------------------------------
 # Tables
 
 
 @device
-def _interp(x, xp, slope, m, guess):
-    """``np.interp(x, xp[:m], arange(m))`` (numpy's formula); ``guess`` ≥ 0 is a linear guess of
-    the segment for uniform axes (corrected by stepping), < 0 asks for a binary search."""
-    if x > xp[m - 1]:
+def _interp(x, xp, slope, a, m, guess):
+    """``np.interp(x, xp[a, :m], arange(m))`` (numpy's formula); ``guess`` ≥ 0 is a linear guess
+    of the segment for uniform axes (corrected by stepping), < 0 asks for a binary search."""
+    if x > xp[a, m - 1]:
         return float(m - 1)
-    if x < xp[0]:
+    if x < xp[a, 0]:
         return 0.0
     if x != x:
         return x
     if guess >= 0.0:
         j = min(int(guess), m - 1)
-        while j > 0 and xp[j] > x:
+        while j > 0 and xp[a, j] > x:
             j -= 1
-        while j < m - 1 and xp[j + 1] <= x:
+        while j < m - 1 and xp[a, j + 1] <= x:
             j += 1
     else:
         lo, hi = 0, m
         while hi - lo > 1:
             mid = (lo + hi) >> 1
-            if xp[mid] <= x:
+            if xp[a, mid] <= x:
                 lo = mid
             else:
                 hi = mid
         j = lo
-    if j == m - 1 or xp[j] == x:
+    if j == m - 1 or xp[a, j] == x:
         return float(j)
-    r = slope[j] * (x - xp[j]) + j
+    r = slope[a, j] * (x - xp[a, j]) + j
     if r != r:
-        r = slope[j] * (x - xp[j + 1]) + (j + 1)
+        r = slope[a, j] * (x - xp[a, j + 1]) + (j + 1)
     return r
 
 
@@ -163,7 +182,7 @@ def _axis_index(x, a, ax_i, ax_f, xp, slope):
         guess = (t - ax_f[a, 6]) * ax_f[a, 7]
         if not (guess >= 0.0):
             guess = 0.0
-    idx = _interp(t, xp[a], slope[a], m, guess)
+    idx = _interp(t, xp, slope, a, m, guess)
     if kind == PERIODIC and idx >= n:
         idx -= n
     r = math.floor(idx + 0.5)
@@ -188,22 +207,6 @@ def _axis_outside(x, a, ax_i, ax_f):
     if kind == WRAPPED and abs(xr - ax_f[a, 1] - lo) <= DOMAIN_TOL:
         out = False
     return out
-
-
-@device
-def _cell(x, a, ax_i):
-    """``(low node, high node, fraction)`` of fractional index ``x`` on axis ``a``."""
-    n = ax_i[a, 0]
-    fl = math.floor(x)
-    f = x - fl
-    i0 = int(fl)
-    if ax_i[a, 1] == PERIODIC:  # x in [0, n)
-        i0 = i0 % n if (i0 < 0 or i0 >= n) else i0
-        i1 = i0 + 1 if i0 + 1 < n else 0
-    else:
-        i0 = min(max(i0, 0), n - 1)
-        i1 = min(i0 + 1, n - 1)
-    return i0 * ax_i[a, 4], i1 * ax_i[a, 4], f
 
 
 @device
@@ -276,12 +279,16 @@ def _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f):
 
 
 @kernel
-def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, valid, has_valid, mode, out, flags):
+def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, valid, vmode, mode, out, flags):
     """Interpolate at every pair into ``out[M, C]``; ``flags[M]`` = 1 where a cell without valid
-    corners lies below the horizon (the caller fills it). Returns ``(outside pairs, flagged
-    pairs, wi zero vectors, wo zero vectors)``."""
+    corners lies below the horizon (the caller fills it). ``vmode``: every node valid
+    (:data:`ALL_VALID`), validity per node in the last column of ``vals`` (:data:`NODE_FLAG`),
+    or per node and channel in ``valid`` (:data:`CHANNEL_FLAGS`). Returns ``(outside pairs,
+    flagged pairs, wi zero vectors, wo zero vectors)``."""
     m = wi.shape[0]
-    nc = vals.shape[1]
+    nc = out.shape[1]
+    n_axes = 4
+    first = 1 if ax_i[0, 5] else 0  # an isotropic grid's dummy axis takes no part
     n_blocks = (m + BLOCK - 1) // BLOCK
     n_out = 0
     n_fill = 0
@@ -289,9 +296,18 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
     zo = 0
     for b in prange(n_blocks):
         den = np.empty(nc)
-        plain = np.empty(nc)
-        zero = np.empty(nc, np.bool_)
-        for i in range(b * BLOCK, min(m, (b + 1) * BLOCK)):
+        x = np.empty(n_axes)
+        lo = np.empty((BLOCK, n_axes), np.int64)
+        hi = np.empty((BLOCK, n_axes), np.int64)
+        fr = np.zeros((BLOCK, n_axes))
+        go = np.empty(BLOCK, np.bool_)
+        start = b * BLOCK
+        stop = min(m, start + BLOCK)
+        # pass 1: coordinates and cells (arithmetic); pass 2: the gathers, free of long
+        # dependency chains, so the memory accesses of successive pairs overlap
+        for i in range(start, stop):
+            j = i - start
+            go[j] = False
             flags[i] = 0
             ix, iy, iz, ox, oy, oz, st = _load(wi, wo, i, check)
             if st != 0:
@@ -303,85 +319,113 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
                 elif st == 4:
                     zo += 1
                 continue
-            x0, x1, x2, x3 = _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f)
-            outside = (_axis_outside(x0, 0, ax_i, ax_f) or _axis_outside(x1, 1, ax_i, ax_f)
-                       or _axis_outside(x2, 2, ax_i, ax_f) or _axis_outside(x3, 3, ax_i, ax_f))
+            x[0], x[1], x[2], x[3] = _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f)
+            outside = False
+            for a in range(first, n_axes):
+                if _axis_outside(x[a], a, ax_i, ax_f):
+                    outside = True
             if outside:
                 n_out += 1
                 if mode != 2:
                     for c in range(nc):
                         out[i, c] = np.nan
                     continue
-            k0 = _axis_index(x0, 0, ax_i, ax_f, xp, slope)
-            k1 = _axis_index(x1, 1, ax_i, ax_f, xp, slope)
-            k2 = _axis_index(x2, 2, ax_i, ax_f, xp, slope)
-            k3 = _axis_index(x3, 3, ax_i, ax_f, xp, slope)
-            if k0 != k0 or k1 != k1 or k2 != k2 or k3 != k3:
+            bad = False
+            lo[j, 0] = 0
+            hi[j, 0] = 0
+            for a in range(first, n_axes):
+                k = _axis_index(x[a], a, ax_i, ax_f, xp, slope)
+                if k != k:
+                    bad = True
+                    break
+                # the cell: low and high node (as flat offsets) and the fraction
+                n = ax_i[a, 0]
+                fl = math.floor(k)
+                i0 = int(fl)
+                if ax_i[a, 1] == PERIODIC:  # k in [0, n)
+                    i0 = i0 % n if (i0 < 0 or i0 >= n) else i0
+                    i1 = i0 + 1 if i0 + 1 < n else 0
+                else:
+                    i0 = min(max(i0, 0), n - 1)
+                    i1 = min(i0 + 1, n - 1)
+                lo[j, a] = i0 * ax_i[a, 4]
+                hi[j, a] = i1 * ax_i[a, 4]
+                fr[j, a] = k - fl
+            if bad:
                 for c in range(nc):
                     out[i, c] = np.nan
                 continue
-            a0, b0, f0 = _cell(k0, 0, ax_i)
-            a1, b1, f1 = _cell(k1, 1, ax_i)
-            a2, b2, f2 = _cell(k2, 2, ax_i)
-            a3, b3, f3 = _cell(k3, 3, ax_i)
+            go[j] = True
+        n_corners = 1 << (n_axes - first)
+        for i in range(start, stop):
+            j = i - start
+            if not go[j]:
+                continue
             for c in range(nc):
                 out[i, c] = 0.0
-                if has_valid:
-                    den[c] = 0.0
-                    plain[c] = 0.0
-                    zero[c] = True
-            for corner in range(8 if ax_i[0, 0] == 1 else 16):
-                w = 1.0
-                if corner & 8:
-                    w *= f0
-                    pos = b0
-                else:
-                    w *= 1.0 - f0
-                    pos = a0
-                if corner & 4:
-                    w *= f1
-                    pos += b1
-                else:
-                    w *= 1.0 - f1
-                    pos += a1
-                if corner & 2:
-                    w *= f2
-                    pos += b2
-                else:
-                    w *= 1.0 - f2
-                    pos += a2
-                if corner & 1:
-                    w *= f3
-                    pos += b3
-                else:
-                    w *= 1.0 - f3
-                    pos += a3
-                if w == 0.0:
-                    continue
-                if not has_valid:
+                den[c] = 0.0
+            dn = 0.0
+            slow = False
+            for sweep in range(2):
+                # sweep 0: the weighted sum over valid corners; sweep 1 (rare: no valid corner
+                # in some channel): the plain sum with missing samples read as 0, and whether
+                # every weighted corner is a below-horizon node holding 0
+                if sweep == 1 and not slow:
+                    break
+                for corner in range(n_corners):
+                    # weight multiplied in axis order as table._corners does; bit (n_axes - 1 - a)
+                    # of the corner picks the high node of axis a
+                    w = 1.0
+                    pos = 0
+                    for a in range(first, n_axes):
+                        if (corner >> (n_axes - 1 - a)) & 1:
+                            w *= fr[j, a]
+                            pos += hi[j, a]
+                        else:
+                            w *= 1.0 - fr[j, a]
+                            pos += lo[j, a]
+                    if w == 0.0:
+                        continue
+                    if sweep == 1:
+                        for c in range(nc):
+                            if den[c] > 0.0:
+                                continue
+                            v = float(vals[pos, c])
+                            ok = vals[pos, nc] != 0.0 if vmode == NODE_FLAG else valid[pos, c]
+                            if ok or v >= 0.0:
+                                out[i, c] += w * v
+                            if v != 0.0:
+                                den[c] = -1.0  # not all zero: NaN
+                        continue
+                    if vmode == ALL_VALID:
+                        for c in range(nc):
+                            out[i, c] += w * float(vals[pos, c])
+                    elif vmode == NODE_FLAG:
+                        if vals[pos, nc] != 0.0:
+                            dn += w
+                            for c in range(nc):
+                                out[i, c] += w * float(vals[pos, c])
+                    else:
+                        for c in range(nc):
+                            if valid[pos, c]:
+                                out[i, c] += w * float(vals[pos, c])
+                                den[c] += w
+                if sweep == 0 and vmode != ALL_VALID:
                     for c in range(nc):
-                        out[i, c] += w * float(vals[pos, c])
-                    continue
-                for c in range(nc):
-                    v = float(vals[pos, c])
-                    ok = valid[pos, c]
-                    if ok:
-                        out[i, c] += w * v
-                        den[c] += w
-                        plain[c] += w * v
-                    elif v >= 0.0:
-                        plain[c] += w * v
-                    if v != 0.0:
-                        zero[c] = False
-            if has_valid:
+                        if vmode == NODE_FLAG:
+                            den[c] = dn
+                        if den[c] > 0.0:
+                            out[i, c] = out[i, c] / den[c]
+                        else:
+                            out[i, c] = 0.0
+                            den[c] = 0.0
+                            slow = True
+            if slow:
                 fill = False
                 for c in range(nc):
-                    if den[c] > 0.0:
-                        out[i, c] = out[i, c] / den[c]
-                    elif zero[c]:
-                        out[i, c] = plain[c]
-                        fill = True
-                    else:
+                    if den[c] == 0.0:
+                        fill = True  # plain interpolation of below-horizon zeros: filled by the caller
+                    elif den[c] < 0.0:
                         out[i, c] = np.nan
                 if fill:
                     flags[i] = 1
@@ -428,20 +472,63 @@ def _axis_arrays(axes, strides, iso_dummy):
     return ax_i, ax_f, xp, slope
 
 
+#: Value arrays at least this large are placed on 2 MiB pages where the system allows it.
+LARGE_PAGE_BYTES = 4 << 20
+_HUGE = 2 << 20
+
+
+def _large_pages(shape, dtype):
+    """An empty array, on transparent huge pages when it is large and the system grants them
+    (``madvise``): interpolation reads a few nodes at random places of a table of tens of MB,
+    and with 4 KiB pages nearly every read also misses the address translation cache."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    if nbytes < LARGE_PAGE_BYTES:
+        return np.empty(shape, dtype)
+    import mmap
+
+    advice = getattr(mmap, "MADV_HUGEPAGE", None)
+    if advice is None:
+        return np.empty(shape, dtype)
+    buf = mmap.mmap(-1, nbytes + _HUGE)
+    raw = np.frombuffer(buf, np.uint8)
+    offset = (-raw.ctypes.data) % _HUGE
+    try:
+        buf.madvise(advice, offset, len(buf) - offset)
+    except (OSError, ValueError):
+        pass
+    return raw[offset:offset + nbytes].view(dtype).reshape(shape)
+
+
 class TablePlan:
     """What :func:`table_eval` needs of a table, computed once and cached on it: the values
-    with horizon ghosts as one contiguous ``[nodes, C]`` array in the stored dtype, the valid
-    mask (or none), and the packed axes."""
+    with horizon ghosts as one contiguous ``[nodes, C]`` array in the stored dtype (with a
+    column of node validity when validity is per node), the valid mask when it differs between
+    channels, and the packed axes."""
 
     def __init__(self, grid, values, valid, isotropic):
         c = values.shape[-1]
-        self.vals = np.ascontiguousarray(values).reshape(-1, c)
+        self.n_channels = c
+        flat = np.asarray(values).reshape(-1, c)
+        self.valid = np.ones((1, 1), np.bool_)
         if valid is None:
-            self.valid = np.ones((1, 1), np.bool_)
-            self.has_valid = False
+            self.vmode = ALL_VALID
+            self.vals = _large_pages(flat.shape, flat.dtype)
+            self.vals[...] = flat
         else:
-            self.valid = np.ascontiguousarray(valid).reshape(-1, c)
-            self.has_valid = True
+            ok = np.asarray(valid).reshape(-1, c)
+            per_node = ok[:, 0]
+            if np.array_equal(np.broadcast_to(per_node[:, None], ok.shape), ok):
+                # validity per node: a last column of 1/0 beside the values (one cache line)
+                self.vmode = NODE_FLAG
+                self.vals = _large_pages((flat.shape[0], c + 1), flat.dtype)
+                self.vals[:, :c] = flat
+                self.vals[:, c] = per_node
+            else:
+                self.vmode = CHANNEL_FLAGS
+                self.vals = _large_pages(flat.shape, flat.dtype)
+                self.vals[...] = flat
+                self.valid = np.ascontiguousarray(ok)
         shape = grid.shape
         strides = [int(np.prod(shape[k + 1:], dtype=np.int64)) for k in range(len(shape))]
         self.ax_i, self.ax_f, self.xp, self.slope = _axis_arrays(grid.axes, strides, len(shape) == 3)
@@ -455,8 +542,13 @@ class TablePlan:
         self.iso = bool(isotropic)
 
     def run(self, wi, wo, check, mode, out, flags):
-        return table_eval(wi, wo, check, self.kind, self.fold, self.iso, self.ax_i, self.ax_f, self.xp,
-                          self.slope, self.vals, self.valid, self.has_valid, OUTSIDE[mode], out, flags)
+        """:func:`table_eval` over all pairs (in chunks when they are not C-contiguous); returns
+        its counts summed."""
+        total = np.zeros(4, np.int64)
+        for rows, a, b in contiguous_pairs(wi, wo):
+            total += table_eval(a, b, check, self.kind, self.fold, self.iso, self.ax_i, self.ax_f, self.xp,
+                                self.slope, self.vals, self.valid, self.vmode, OUTSIDE[mode], out[rows], flags[rows])
+        return tuple(int(x) for x in total)
 
 
 # ------------------------------------------------------------------------------------------

@@ -421,7 +421,7 @@ class Table(BRDF):
         the domain (or raising, or clamped, as :attr:`outside` says)."""
         plan, fill = self._kernel_plan()
         m = wi.shape[0]
-        out = np.empty((m, plan.vals.shape[1]))
+        out = np.empty((m, plan.n_channels))
         flags = np.empty(m, np.uint8)
         n_out, n_fill, zero_i, zero_o = plan.run(wi, wo, check, self._outside, out, flags)
         if zero_i or zero_o:
