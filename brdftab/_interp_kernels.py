@@ -26,6 +26,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 from ._jit import device, kernel, prange
 
@@ -116,6 +120,34 @@ def contiguous_pairs(wi, wo):
     for s in range(0, m, CHUNK):
         rows = slice(s, min(m, s + CHUNK))
         yield rows, np.ascontiguousarray(wi[rows], np.float64), np.ascontiguousarray(wo[rows], np.float64)
+
+
+@intrinsic
+def _prefetch(typingctx, arr, idx):
+    """A hint to the processor to fetch element ``idx`` of the flat array ``arr`` into the cache
+    (LLVM's ``prefetch``: read, keep in all cache levels); no effect on results."""
+    if not isinstance(arr, types.Array):
+        return None
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0i8")
+        builder.call(fn, [builder.bitcast(builder.gep(ary.data, [args[1]]), i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return types.void(arr, types.intp), codegen
+
+
+@device
+def _prefetch_row(vals, row):
+    """Prefetch rows ``row`` and ``row + 1`` (the next node along the last axis) of a
+    C-contiguous 2-D array: their first and last elements."""
+    k = vals.shape[1]
+    _prefetch(vals, row * k)
+    _prefetch(vals, min(row * k + 2 * k - 1, vals.size - 1))
 
 
 # ------------------------------------------------------------------------------------------
@@ -356,6 +388,16 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
                     out[i, c] = np.nan
                 continue
             go[j] = True
+            # prefetch the cell's rows now (they arrive while the next pairs' coordinates are
+            # computed), so the gathers of pass 2 mostly hit the cache
+            p0 = lo[j, 0] + lo[j, 1] + lo[j, 2] + lo[j, 3]
+            d2 = hi[j, 2] - lo[j, 2]
+            _prefetch_row(vals, p0)
+            _prefetch_row(vals, p0 + d2)
+            if first == 0 or hi[j, 1] != lo[j, 1]:
+                p1 = p0 + hi[j, 1] - lo[j, 1]
+                _prefetch_row(vals, p1)
+                _prefetch_row(vals, p1 + d2)
         n_corners = 1 << (n_axes - first)
         for i in range(start, stop):
             j = i - start
@@ -732,6 +774,8 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
             for corner in range(4):
                 q = q0 if corner == 0 else (q1 if corner == 1 else (q2 if corner == 2 else q3))
                 wq = v0 if corner == 0 else (v1 if corner == 1 else (v2 if corner == 2 else v3))
+                if wq == 0.0:
+                    continue  # adds 0 (the stored spectra are finite: the reader checks them)
                 for k in range(ns):
                     g00 = spectra[q, jy, jx, k]
                     g10 = spectra[q, jy, jx + 1, k]
