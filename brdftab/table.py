@@ -23,6 +23,10 @@ A :class:`Table` is a :class:`~brdftab.brdf.BRDF`: it evaluates at any (wi, wo) 
 multilinear interpolation in its grid's index space — linear in the warped coordinate of
 warped axes (MERL θh), periodic across the seam of periodic axes (φd, φh), after folding φd
 by the table's declared fold. At its own nodes it returns the stored values exactly.
+The interpolation runs compiled, one pass per direction pair written into the result
+(:mod:`brdftab._interp_kernels`); the numpy code it replaced (:meth:`Table._eval_numpy`, also the
+path of a table evaluated slab by slab from disk) is its reference, and the two agree to 1e-12
+relative on every grid type (``tests/test_table.py``).
 
 Three rules keep interpolation honest:
 
