@@ -414,7 +414,37 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
                 # every weighted corner is a below-horizon node holding 0
                 if sweep == 1 and not slow:
                     break
-                for corner in range(n_corners):
+                if sweep == 0:
+                    # the cell's corners as nested loops over the axes (axis 0 outermost: the
+                    # order and the products of table._corners)
+                    for b0 in range(2 - first):
+                        w0 = fr[j, 0] if b0 else 1.0 - fr[j, 0]
+                        q0 = hi[j, 0] if b0 else lo[j, 0]
+                        for b1 in range(2):
+                            w1 = w0 * (fr[j, 1] if b1 else 1.0 - fr[j, 1])
+                            q1 = q0 + (hi[j, 1] if b1 else lo[j, 1])
+                            for b2 in range(2):
+                                w2 = w1 * (fr[j, 2] if b2 else 1.0 - fr[j, 2])
+                                q2 = q1 + (hi[j, 2] if b2 else lo[j, 2])
+                                for b3 in range(2):
+                                    w = w2 * (fr[j, 3] if b3 else 1.0 - fr[j, 3])
+                                    pos = q2 + (hi[j, 3] if b3 else lo[j, 3])
+                                    if w == 0.0:
+                                        continue
+                                    if vmode == ALL_VALID:
+                                        for c in range(nc):
+                                            out[i, c] += w * float(vals[pos, c])
+                                    elif vmode == NODE_FLAG:
+                                        if vals[pos, nc] != 0.0:
+                                            dn += w
+                                            for c in range(nc):
+                                                out[i, c] += w * float(vals[pos, c])
+                                    else:
+                                        for c in range(nc):
+                                            if valid[pos, c]:
+                                                out[i, c] += w * float(vals[pos, c])
+                                                den[c] += w
+                for corner in range(n_corners if sweep == 1 else 0):
                     # weight multiplied in axis order as table._corners does; bit (n_axes - 1 - a)
                     # of the corner picks the high node of axis a
                     w = 1.0
@@ -428,30 +458,15 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
                             pos += lo[j, a]
                     if w == 0.0:
                         continue
-                    if sweep == 1:
-                        for c in range(nc):
-                            if den[c] > 0.0:
-                                continue
-                            v = float(vals[pos, c])
-                            ok = vals[pos, nc] != 0.0 if vmode == NODE_FLAG else valid[pos, c]
-                            if ok or v >= 0.0:
-                                out[i, c] += w * v
-                            if v != 0.0:
-                                den[c] = -1.0  # not all zero: NaN
-                        continue
-                    if vmode == ALL_VALID:
-                        for c in range(nc):
-                            out[i, c] += w * float(vals[pos, c])
-                    elif vmode == NODE_FLAG:
-                        if vals[pos, nc] != 0.0:
-                            dn += w
-                            for c in range(nc):
-                                out[i, c] += w * float(vals[pos, c])
-                    else:
-                        for c in range(nc):
-                            if valid[pos, c]:
-                                out[i, c] += w * float(vals[pos, c])
-                                den[c] += w
+                    for c in range(nc):
+                        if den[c] > 0.0:
+                            continue
+                        v = float(vals[pos, c])
+                        ok = vals[pos, nc] != 0.0 if vmode == NODE_FLAG else valid[pos, c]
+                        if ok or v >= 0.0:
+                            out[i, c] += w * v
+                        if v != 0.0:
+                            den[c] = -1.0  # not all zero: NaN
                 if sweep == 0 and vmode != ALL_VALID:
                     for c in range(nc):
                         if vmode == NODE_FLAG:
