@@ -634,3 +634,29 @@ def test_compiled_interpolation_of_spectral_tables_and_bad_directions():
     _assert_parity(table, wi, wo, wavelengths=[450, 650])
     with pytest.raises(ParameterError, match="zero length"):
         table.eval(np.zeros(3), wo)
+
+
+def test_kernel_atan2_is_within_two_ulp_of_numpy():
+    # the compiled coordinates use their own atan2 (brdftab._interp_kernels._atan2)
+    import numba
+
+    from brdftab._interp_kernels import _atan2
+
+    @numba.njit
+    def run(a, b, out):
+        for i in range(a.size):
+            out[i] = _atan2(a[i], b[i])
+
+    rng = np.random.default_rng(1)
+    n = 200_000
+    a = rng.normal(size=n) * 10.0 ** rng.uniform(-12, 6, n)
+    b = rng.normal(size=n) * 10.0 ** rng.uniform(-12, 6, n)
+    special = np.array([0.0, -0.0, np.inf, -np.inf, np.nan, 1.0, -1.0, 1e-320, -1e-320])
+    sa, sb = np.meshgrid(special, special)
+    a, b = np.concatenate([a, sa.ravel()]), np.concatenate([b, sb.ravel()])
+    got, want = np.empty(a.size), np.arctan2(a, b)
+    run(a, b, got)
+    fin = ~np.isnan(want)
+    assert np.array_equal(np.isnan(got), np.isnan(want))
+    assert np.array_equal(np.signbit(got[fin]), np.signbit(want[fin]))
+    assert np.max(np.abs(got[fin] - want[fin]) / np.spacing(np.abs(want[fin]))) <= 2.0
