@@ -447,3 +447,221 @@ def test_table_larger_than_memory_is_refused_before_allocating():
     g = RusinkiewiczGrid(1_000_000, 1_000_000, 1_000_000)
     with pytest.raises(BrdftabError, match="GiB"):
         tabulate(PLAIN_GGX, g, progress=False)
+
+
+# -- the compiled interpolation is the numpy one -------------------------------------------------
+
+#: Pairs this close [rad] to where the last digit of a coordinate picks the cell or the branch —
+#: a node (cell boundary; missing and below-horizon nodes are nodes), a domain edge (± its
+#: tolerance), a periodic seam, the clamp point of a wrapped arc, the horizon, the θh pole —
+#: are left out of the parity test: there the compiled and numpy paths may round a coordinate
+#: to different sides, and both answers are right.
+PARITY_MARGIN = 1e-9
+
+
+def _near_boundaries(table, wi, wo):
+    """Bool per pair: within PARITY_MARGIN of a cell boundary, domain edge, seam, the horizon
+    or the θh pole (see PARITY_MARGIN)."""
+    from brdftab.geometry import io_to_hd, vec_to_sph
+    from brdftab.grids.axis import DOMAIN_TOL
+
+    grid = table.grid
+    wi, wo = (np.array(w).reshape(-1, 3) for w in np.broadcast_arrays(normalize(wi), normalize(wo)))
+    near = (np.abs(wi[:, 2]) < 2 * PARITY_MARGIN) | (np.abs(wo[:, 2]) < 2 * PARITY_MARGIN)
+    coords = grid._coordinates(wi, wo, table.isotropic)
+    raw = {}
+    rotated = np.zeros(wi.shape[0], bool)
+    if grid.parameterization == "spherical":
+        raw[1] = vec_to_sph(wi)[1]  # the isotropic rotation asks whether φi is inside
+        if table.isotropic:  # a rotated pair sits on the first φi node by construction: both snap
+            ax = grid.axes[1]
+            rotated = ax.outside(raw[1]) if len(ax) > 1 else np.ones(wi.shape[0], bool)
+    else:
+        near |= io_to_hd(wi, wo)[0] < PARITY_MARGIN
+    for a, ax in enumerate(grid.axes):
+        edges = list(ax.values)
+        if ax.period is not None:
+            edges += [ax.values[0] + ax.period]
+            base, span = ax.values[0], ax.period
+        else:
+            lo, hi = ax.domain
+            edges += [lo, hi, lo - DOMAIN_TOL, hi + DOMAIN_TOL]
+            base, span = (ax.values[0], ax.wrap) if ax.wrap is not None else (None, None)
+            if ax.wrap is not None:
+                edges += [lo + ax.wrap - DOMAIN_TOL, lo + ax.wrap + DOMAIN_TOL,
+                          0.5 * (ax.values[0] + ax.wrap + ax.values[-1]), ax.values[0] + ax.wrap]
+        if ax.name == "dphi_o":
+            edges += [-np.pi, np.pi]
+        edges = np.asarray(edges)
+        for x in [coords[a]] + ([raw[a]] if a in raw else []):
+            xs = [x] if base is None else [x, base + np.mod(x - base, span)]
+            for y in xs:
+                d = np.min(np.abs(y[:, None] - edges[None, :]), axis=1) < PARITY_MARGIN
+                near |= d & ~rotated if (a == 1 and x is coords[a]) else d
+    return near
+
+
+def _numpy_eval(table, wi, wo, wavelengths=None):
+    """Table.eval through the numpy interpolation (the reference)."""
+    from brdftab.brdf import BRDF
+
+    table._eval = table._eval_numpy
+    try:
+        return BRDF.eval(table, wi, wo, wavelengths)
+    finally:
+        del table._eval
+
+
+def _parity_pairs(n, seed):
+    """Uniform pairs, pairs near the mirror direction and grazing ones, plus rows the
+    evaluation must treat as every BRDF does: below the horizon, non-unit, non-finite."""
+    rng = np.random.default_rng(seed)
+    wi, wo = random_pairs(n, seed, max_theta=np.radians(89.999))
+    k = n // 4
+    wo[:k] = normalize(np.array([-1.0, -1.0, 1.0]) * wi[:k] + rng.normal(scale=0.05, size=(k, 3)))
+    g = slice(k, 2 * k)
+    wi[g] = sph_to_vec(np.radians(rng.uniform(80, 90, k)), rng.uniform(-np.pi, np.pi, k))
+    wo[g] = sph_to_vec(np.radians(rng.uniform(80, 90, k)), rng.uniform(-np.pi, np.pi, k))
+    wi[2 * k:2 * k + 5, 2] *= -1  # below the horizon
+    wi[2 * k + 5:2 * k + 10] *= 3.0  # not unit
+    wo[2 * k + 10, 1] = np.nan
+    return wi, wo
+
+
+def _assert_parity(table, wi, wo, wavelengths=None):
+    keep = ~_near_boundaries(table, wi, wo)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BrdftabWarning)  # pairs outside the domain: NaN, said once
+        got = table.eval(wi, wo, wavelengths)
+        want = _numpy_eval(table, wi, wo, wavelengths)
+    assert got.shape == want.shape and keep.mean() > 0.9
+    np.testing.assert_allclose(got[keep], want[keep], rtol=1e-12, atol=0)
+    return got, want, keep
+
+
+def _with_missing(table, per_channel):
+    """``table`` with a block of MERL-style negative markers (valid_min = 0) and a NaN sample
+    declared missing: in every channel, or in one channel only."""
+    ds = table.ds.copy(deep=True)
+    v = ds["brdf"].values
+    sl = (slice(3, 6), slice(2, 5), slice(0, 7))
+    if per_channel:
+        v[sl + (1,)] = -1.0
+    else:
+        v[sl] = -1.0
+    v[(8, 8, 3)] = np.nan
+    ds["brdf"].attrs.update(valid_min=0.0, missing_value=np.nan)
+    return brdftab.table.Table(ds)
+
+
+_ANISO_GGX = models.create("microfacet", alpha_x=0.2, alpha_y=0.5)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: tabulate(GGX, RusinkiewiczGrid(16, 12, 24, theta_h_spacing="merl"), progress=False),
+    lambda: tabulate(models.create("lambert", albedo=0.4), RusinkiewiczGrid(
+        10, 9, 12, phi_d_fold="bilateral", sample_position="lower-edge"), dtype="float32", progress=False),
+    lambda: tabulate(GGX, RusinkiewiczGrid(np.radians([0, 2, 5, 10, 20, 40, 60, 80, 89]), 10,
+                                           np.radians([0, 20, 45, 70, 90]), phi_d_fold="reciprocity+bilateral"),
+                     progress=False),
+    lambda: tabulate(_ANISO_GGX, RusinkiewiczGrid(8, 8, 16, 12, phi_d_fold="none"), progress=False),
+    lambda: tabulate(_ANISO_GGX, RusinkiewiczGrid(8, 8, 12, 12, phi_d_fold="reciprocity"), progress=False),
+    lambda: _with_missing(tabulate(GGX, RusinkiewiczGrid(12, 12, 24, theta_h_spacing="merl"), progress=False),
+                          per_channel=False),
+    lambda: _with_missing(tabulate(GGX, RusinkiewiczGrid(12, 12, 24), progress=False), per_channel=True),
+], ids=["merl-warp", "bilateral-float32-grey", "explicit-r+b", "aniso-none", "aniso-reciprocity",
+        "missing-per-node", "missing-per-channel"])
+def test_compiled_interpolation_equals_numpy_on_rusinkiewicz_grids(make):
+    table = make()
+    wi, wo = _parity_pairs(4000, 3)
+    got, want, keep = _assert_parity(table, wi, wo)
+    assert np.array_equal(np.isnan(got), np.isnan(want))  # NaN rows (missing, non-finite) agree everywhere
+    # a direction broadcast against many, and the pairs a combinator hands to _eval
+    _assert_parity(table, wi[7], wo)
+    above = (wi[:, 2] > 0) & (wo[:, 2] > 0) & np.isfinite(wo).all(axis=1)
+    a, b = normalize(wi[above]), normalize(wo[above])
+    k = ~_near_boundaries(table, a, b)
+    lam, n = None, table.layout.n_out(None)
+    np.testing.assert_allclose(table._eval(a, b, lam, n)[k], table._eval_numpy(a, b, lam, n)[k], rtol=1e-12, atol=0)
+
+
+def test_compiled_interpolation_equals_numpy_on_the_merl_grid(merl_table):
+    from brdftab.geometry import hd_to_io
+
+    wi, wo = _parity_pairs(3000, 4)
+    _assert_parity(merl_table, wi, wo)
+    # cells with every corner below the horizon (filled from the nearest data; see
+    # test_cells_with_every_corner_below_the_horizon_take_the_nearest_data)
+    rng = np.random.default_rng(5)
+    th, td = np.radians(rng.uniform(80, 89, 3000)), np.radians(rng.uniform(80, 89.9, 3000))
+    wi, wo = hd_to_io(th, 0.0, td, np.radians(rng.choice([-90.0, 90.0], 3000) + rng.uniform(-0.2, 0.2, 3000)))
+    plan, _ = merl_table._kernel_plan()
+    flags = np.empty(3000, np.uint8)
+    assert plan.run(wi, wo, True, "nan", np.empty((3000, 3)), flags)[1] > 100
+    _assert_parity(merl_table, wi, wo)
+
+
+@pytest.mark.parametrize("outside", ["nan", "clamp"])
+@pytest.mark.parametrize("make", [
+    # periodic azimuths, θ up to 80° (beyond: outside), isotropic model, float32 samples
+    lambda: tabulate(GGX, SphericalGrid(np.radians(np.arange(0, 81, 10)), np.radians(np.arange(0, 360, 30)),
+                                        np.radians(np.arange(0, 81, 5)), np.radians(np.arange(0, 360, 15))),
+                     dtype="float32", progress=False),
+    # azimuths covering arcs only (wrapped axes); isotropic: φi outside its arc rotates onto it
+    lambda: tabulate(GGX, SphericalGrid(np.radians(np.arange(0, 90, 10)), np.radians([0, 30, 60, 90]),
+                                        np.radians(np.arange(0, 90, 10)), np.radians(np.arange(-60, 181, 20))),
+                     progress=False),
+    # anisotropic: no rotation, one φi node
+    lambda: tabulate(_ANISO_GGX, SphericalGrid(np.radians(np.arange(0, 90, 10)), [0.0],
+                                               np.radians(np.arange(0, 90, 10)), np.radians(np.arange(0, 360, 20))),
+                     progress=False),
+    # relative to the mirror direction, zoomed
+    lambda: tabulate(GGX, SphericalGrid(np.radians(np.arange(20, 80, 10)), np.radians(np.arange(0, 360, 45)),
+                                        np.radians(np.arange(-20, 21, 4)), np.radians(np.arange(-40, 41, 8)),
+                                        relative_to="specular"), progress=False),
+], ids=["periodic", "wrapped-arcs", "aniso-single-phi-i", "specular"])
+def test_compiled_interpolation_equals_numpy_on_gonio_grids(make, outside):
+    table = make()
+    table.outside = outside
+    wi, wo = _parity_pairs(4000, 5)
+    got, want, keep = _assert_parity(table, wi, wo)
+    if outside == "nan":
+        assert np.isnan(got[keep]).any() and not np.isnan(got[keep]).all()
+        table.outside = "raise"
+        with pytest.raises(BrdftabError, match="outside the domain"):
+            table.eval(wi, wo)
+
+
+def test_compiled_interpolation_of_spectral_tables_and_bad_directions():
+    spec = models.create("lambert", albedo={"wavelengths_nm": [400, 500, 600, 700], "values": [0.2, 0.4, 0.5, 0.7]})
+    table = tabulate(spec, RusinkiewiczGrid(6, 6, 12), wavelengths=[400, 500, 600, 700], progress=False)
+    wi, wo = _parity_pairs(400, 6)
+    _assert_parity(table, wi, wo, wavelengths=[450, 650])
+    with pytest.raises(ParameterError, match="zero length"):
+        table.eval(np.zeros(3), wo)
+
+
+def test_kernel_atan2_is_within_two_ulp_of_numpy():
+    # the compiled coordinates use their own atan2 (brdftab._interp_kernels._atan2)
+    import numba
+
+    from brdftab._interp_kernels import _atan2
+
+    @numba.njit
+    def run(a, b, out):
+        for i in range(a.size):
+            out[i] = _atan2(a[i], b[i])
+
+    rng = np.random.default_rng(1)
+    n = 200_000
+    a = rng.normal(size=n) * 10.0 ** rng.uniform(-12, 6, n)
+    b = rng.normal(size=n) * 10.0 ** rng.uniform(-12, 6, n)
+    special = np.array([0.0, -0.0, np.inf, -np.inf, np.nan, 1.0, -1.0, 1e-320, -1e-320])
+    sa, sb = np.meshgrid(special, special)
+    a, b = np.concatenate([a, sa.ravel()]), np.concatenate([b, sb.ravel()])
+    got, want = np.empty(a.size), np.arctan2(a, b)
+    run(a, b, got)
+    fin = ~np.isnan(want)
+    assert np.array_equal(np.isnan(got), np.isnan(want))
+    assert np.array_equal(np.signbit(got[fin]), np.signbit(want[fin]))
+    assert np.max(np.abs(got[fin] - want[fin]) / np.spacing(np.abs(want[fin]))) <= 2.0

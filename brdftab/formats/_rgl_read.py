@@ -245,7 +245,55 @@ class RGLBSDF(BRDF):
         (86.25° for the default 48 × 48 samples, 84.4° for 32 × 32)."""
         return float(np.pi / 2 - np.pi / self.resolution)
 
+    def eval(self, wi, wo, wavelengths=None, *, assume_unit: bool = False) -> np.ndarray:
+        """f(wi, wo) [sr⁻¹] (see :meth:`_eval_numpy` for the hold near the horizon), in one compiled
+        pass per pair written into the result (:func:`brdftab._interp_kernels.rgl_eval`), with
+        the normalization, NaN and horizon rules of every BRDF."""
+        from ..geometry import as_directions
+
+        wi, wo = as_directions(wi, wo)
+        lam = self.layout.resolve(wavelengths)
+        lo, hi, t = self._channel_weights(lam, self.layout.n_out(lam))
+        lead = wi.shape[:-1]
+        out = self._compiled(wi.reshape(-1, 3), wo.reshape(-1, 3), lo, hi, t, check=not assume_unit, hold=True)
+        return out.reshape(lead + (lo.size,))
+
     def _eval(self, wi, wo, lam, n):
+        lo, hi, t = self._channel_weights(lam, n)
+        return self._compiled(wi, wo, lo, hi, t, check=False, hold=True)
+
+    def _kernel_data(self):
+        """The file's tables as the compiled evaluation reads them (contiguous float64); cached."""
+        if getattr(self, "_kernel", None) is None:
+            v = self._vndf
+            self._kernel = dict(
+                p_phi=np.ascontiguousarray(v.params[0]), p_theta=np.ascontiguousarray(v.params[1]),
+                st_phi=int(v.strides[0]), st_theta=int(v.strides[1]),
+                data=np.ascontiguousarray(v.data), cond=np.ascontiguousarray(v.cond),
+                marg=np.ascontiguousarray(v.marg), spectra=np.ascontiguousarray(self._spectra),
+                ndf=np.ascontiguousarray(self._ndf.data[0]), sigma=np.ascontiguousarray(self._sigma.data[0]))
+        return self._kernel
+
+    def _compiled(self, wi, wo, lo, hi, t, check, hold):
+        """f (``hold``: with the hold of :meth:`_eval_numpy`) or, without it, f·cosθo at
+        ``(M, 3)`` pairs, compiled; 0 at and below the horizon."""
+        from .._interp_kernels import contiguous_pairs, rgl_eval
+
+        k = self._kernel_data()
+        out = np.empty((wi.shape[0], lo.size))
+        lo, hi, t = (np.ascontiguousarray(lo, np.int64), np.ascontiguousarray(hi, np.int64),
+                     np.ascontiguousarray(t, np.float64))
+        zero_i = zero_o = 0
+        for rows, a, b in contiguous_pairs(wi, wo):
+            zi, zo = rgl_eval(a, b, check, hold, hold, self.isotropic, self.reduction, self.jacobian, self.theta_hold,
+                              k["p_phi"], k["p_theta"], k["st_phi"], k["st_theta"], k["data"], k["cond"], k["marg"],
+                              k["spectra"], k["ndf"], k["sigma"], lo, hi, t, out[rows])
+            zero_i, zero_o = zero_i + zi, zero_o + zo
+        if zero_i or zero_o:
+            raise ParameterError("wi" if zero_i else "wo", "a direction has zero length")
+        return out
+
+    def _eval_numpy(self, wi, wo, lam, n):
         """f = (f·cosθo)/cosθo, with f **held** beyond the last well-conditioned elevation.
 
         The file stores f·cosθo on N × N (``resolution``) warped samples; in the cells that
@@ -277,7 +325,18 @@ class RGLBSDF(BRDF):
         return out
 
     def eval_cos(self, wi, wo, wavelengths=None):
-        """f·cosθo exactly as Mitsuba 3's ``measured`` plugin evaluates the file (no hold)."""
+        """f·cosθo exactly as Mitsuba 3's ``measured`` plugin evaluates the file (no hold), compiled."""
+        from ..geometry import as_directions
+
+        wi, wo = as_directions(wi, wo)
+        lead = wi.shape[:-1]
+        lam = self.layout.resolve(wavelengths)
+        lo, hi, t = self._channel_weights(lam, self.layout.n_out(lam))
+        out = self._compiled(wi.reshape(-1, 3), wo.reshape(-1, 3), lo, hi, t, check=False, hold=False)
+        return out.reshape(lead + (lo.size,))
+
+    def _eval_cos_numpy(self, wi, wo, wavelengths=None):
+        """:meth:`eval_cos` in numpy (the reference of the compiled evaluation)."""
         from ..geometry import as_directions
 
         wi, wo = as_directions(wi, wo)

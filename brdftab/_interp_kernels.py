@@ -1,0 +1,847 @@
+"""Compiled interpolation of tables and RGL ``.bsdf`` files (numba, see :mod:`brdftab._jit`).
+
+One pass per direction pair, written straight into the caller's output array:
+
+* :func:`table_eval` — a :class:`~brdftab.table.Table`: the pair's grid coordinates (Rusinkiewicz
+  half/difference angles with the table's φd fold, or gonio angles, absolute or relative to the
+  mirror direction, with the isotropic rotation onto the first φi node), the fractional index on
+  each axis (``Axis.fractional_index``: linear or square-root warped, periodic, wrapped arcs,
+  snapping onto nodes), the domain test (``Axis.outside``) and the multilinear weights over the
+  valid corners (renormalized; missing samples and below-horizon nodes left out; horizon ghosts
+  are already in the values). Pairs whose cell has no valid corner and lies wholly below the
+  horizon are flagged: the caller fills them from the nearest nodes holding data (rare).
+* :func:`rgl_eval` — an :class:`~brdftab.formats._rgl_read.RGLBSDF`: Mitsuba 3's ``measured``
+  evaluation (the VNDF warp inverted, the spectra interpolated on the warped square, NDF and
+  σ tables), with the reader's hold of f near the horizon.
+
+Both start from the raw direction arrays as :meth:`brdftab.brdf.BRDF.eval` receives them
+(:func:`_load`): rows that are not unit are normalized as ``BRDF.eval`` does, non-finite rows
+give NaN, pairs at or below the horizon give 0, a zero vector is counted (the caller raises).
+The numpy code in :mod:`brdftab.table` and :mod:`brdftab.formats._rgl_read` is the reference:
+``tests/test_table.py`` and ``tests/test_rgl.py`` hold these kernels to it to 1e-12 relative.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+
+from ._jit import device, kernel, prange
+
+HALF_PI = 0.5 * np.pi
+TWO_PI = 2.0 * np.pi
+PI = np.pi
+#: as brdftab.grids.axis.SNAP and DOMAIN_TOL, brdftab.brdf.HORIZON, brdftab.geometry.THETA_H_ZERO
+SNAP = 1e-9
+DOMAIN_TOL = 1e-9
+HORIZON = 1e-12
+THETA_H_ZERO = 1e-12
+#: Pairs per block of a parallel loop (the per-block scratch arrays are allocated once per block).
+BLOCK = 512
+
+# grid kinds
+RUSINKIEWICZ = 0
+SPHERICAL = 1
+SPHERICAL_SPECULAR = 2
+# φd folds (brdftab.grids.axis.PHI_D_FOLDS order)
+FOLDS = {"none": 0, "reciprocity": 1, "bilateral": 2, "reciprocity+bilateral": 3}
+# axis kinds
+PLAIN, PERIODIC, WRAPPED = 0, 1, 2
+# validity modes of table_eval
+ALL_VALID, NODE_FLAG, CHANNEL_FLAGS = 0, 1, 2
+# outside modes
+OUTSIDE = {"nan": 0, "raise": 1, "clamp": 2}
+
+
+@device
+def _mod(a, b):
+    """numpy's ``np.mod`` of floats (the result takes the sign of ``b``), as Python's ``%``."""
+    if 0.0 < a < b:  # the common cases, with the same result as the general one
+        return a
+    if -b <= a < 0.0:
+        return a + b
+    return a % b  # Python's float modulo: fmod, then shifted by b when the signs differ
+
+
+@device
+def _unit(x, y, z):
+    """``(x, y, z, status)`` as ``BRDF.eval`` normalizes a direction: untouched when its length
+    is within 1e-12 of 1, else divided by its largest component and then by its length; status
+    1 for a zero vector."""
+    nrm = math.sqrt(x * x + y * y + z * z)
+    if abs(nrm - 1.0) > 1e-12:
+        big = max(abs(x), abs(y), abs(z))
+        if big == 0.0:
+            return x, y, z, 1
+        x, y, z = x / big, y / big, z / big
+        nrm = math.sqrt(x * x + y * y + z * z)
+        x, y, z = x / nrm, y / nrm, z / nrm
+    return x, y, z, 0
+
+
+@device
+def _load(wi, wo, i, check):
+    """Pair ``i``: ``(ix, iy, iz, ox, oy, oz, status)``; status 0 above the horizon, 1 non-finite
+    (f is NaN), 2 at or below the horizon (f is 0), 3 wi a zero vector, 4 wo a zero vector."""
+    ix, iy, iz = wi[i, 0], wi[i, 1], wi[i, 2]
+    ox, oy, oz = wo[i, 0], wo[i, 1], wo[i, 2]
+    if check:
+        ix, iy, iz, zi = _unit(ix, iy, iz)
+        if zi:
+            return ix, iy, iz, ox, oy, oz, 3
+        ox, oy, oz, zo = _unit(ox, oy, oz)
+        if zo:
+            return ix, iy, iz, ox, oy, oz, 4
+        if not (math.isfinite(ix) and math.isfinite(iy) and math.isfinite(iz) and math.isfinite(ox)
+                and math.isfinite(oy) and math.isfinite(oz)):
+            return ix, iy, iz, ox, oy, oz, 1
+    if not (iz > HORIZON and oz > HORIZON):
+        return ix, iy, iz, ox, oy, oz, 2
+    return ix, iy, iz, ox, oy, oz, 0
+
+
+#: Rows copied at once when directions arrive as views that are not C-contiguous (a direction
+#: broadcast against many): the kernels compile for one array layout, and the copies stay small.
+CHUNK = 1 << 16
+
+
+def contiguous_pairs(wi, wo):
+    """``(rows, wi, wo)`` covering all pairs with C-contiguous float64 ``(k, 3)`` arrays: the
+    arrays themselves when they are, else copies of bounded chunks."""
+    m = wi.shape[0]
+    if wi.flags.c_contiguous and wo.flags.c_contiguous and wi.dtype == np.float64 and wo.dtype == np.float64:
+        yield slice(0, m), wi, wo
+        return
+    for s in range(0, m, CHUNK):
+        rows = slice(s, min(m, s + CHUNK))
+        yield rows, np.ascontiguousarray(wi[rows], np.float64), np.ascontiguousarray(wo[rows], np.float64)
+
+
+@intrinsic
+def _prefetch(typingctx, arr, idx):
+    """A hint to the processor to fetch element ``idx`` of the flat array ``arr`` into the cache
+    (LLVM's ``prefetch``: read, keep in all cache levels); no effect on results."""
+    if not isinstance(arr, types.Array):
+        return None
+
+    def codegen(context, builder, signature, args):
+        ary = context.make_array(signature.args[0])(context, builder, args[0])
+        i8p = ir.IntType(8).as_pointer()
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32]),
+                                            "llvm.prefetch.p0i8")
+        builder.call(fn, [builder.bitcast(builder.gep(ary.data, [args[1]]), i8p), i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    return types.void(arr, types.intp), codegen
+
+
+@device
+def _prefetch_row(vals, row):
+    """Prefetch rows ``row`` and ``row + 1`` (the next node along the last axis) of a
+    C-contiguous 2-D array: their first and last elements."""
+    k = vals.shape[1]
+    _prefetch(vals, row * k)
+    _prefetch(vals, min(row * k + 2 * k - 1, vals.size - 1))
+
+
+# ------------------------------------------------------------------------------------------
+# Tables
+
+
+@device
+def _interp(x, xp, slope, a, m, guess):
+    """``np.interp(x, xp[a, :m], arange(m))`` (numpy's formula); ``guess`` ≥ 0 is a linear guess
+    of the segment for uniform axes (corrected by stepping), < 0 asks for a binary search."""
+    if x > xp[a, m - 1]:
+        return float(m - 1)
+    if x < xp[a, 0]:
+        return 0.0
+    if x != x:
+        return x
+    if guess >= 0.0:
+        j = min(int(guess), m - 1)
+        while j > 0 and xp[a, j] > x:
+            j -= 1
+        while j < m - 1 and xp[a, j + 1] <= x:
+            j += 1
+    else:
+        lo, hi = 0, m
+        while hi - lo > 1:
+            mid = (lo + hi) >> 1
+            if xp[a, mid] <= x:
+                lo = mid
+            else:
+                hi = mid
+        j = lo
+    if j == m - 1 or xp[a, j] == x:
+        return float(j)
+    r = slope[a, j] * (x - xp[a, j]) + j
+    if r != r:
+        r = slope[a, j] * (x - xp[a, j + 1]) + (j + 1)
+    return r
+
+
+@device
+def _axis_index(x, a, ax_i, ax_f, xp, slope):
+    """Fractional index of coordinate ``x`` on axis ``a`` (``Axis.fractional_index``)."""
+    n = ax_i[a, 0]
+    if n == 1:
+        return 0.0
+    kind = ax_i[a, 1]
+    v0 = ax_f[a, 4]
+    if kind == PERIODIC:
+        t = v0 + _mod(x - v0, ax_f[a, 0])
+        m = n + 1
+    else:
+        t = x
+        if kind == WRAPPED:
+            wrap = ax_f[a, 1]
+            t = v0 + _mod(x - v0, wrap)
+            v1 = ax_f[a, 5]
+            if t > v1 and v0 + wrap - t < t - v1:
+                t = v0
+        if ax_i[a, 2]:  # square-root warp
+            t = math.sqrt((t if not (t < 0.0) else 0.0) / HALF_PI)
+        m = n
+    guess = -1.0
+    if ax_i[a, 3]:
+        guess = (t - ax_f[a, 6]) * ax_f[a, 7]
+        if not (guess >= 0.0):
+            guess = 0.0
+    idx = _interp(t, xp, slope, a, m, guess)
+    if kind == PERIODIC and idx >= n:
+        idx -= n
+    r = math.floor(idx + 0.5)
+    if abs(idx - r) < SNAP:
+        idx = r
+    if kind == PERIODIC and idx >= n:
+        idx -= n
+    return idx
+
+
+@device
+def _axis_outside(x, a, ax_i, ax_f):
+    """True where ``x`` lies outside axis ``a``'s domain (``Axis.outside``)."""
+    kind = ax_i[a, 1]
+    if kind == PERIODIC:
+        return not math.isfinite(x)
+    xr = x
+    if kind == WRAPPED:
+        xr = ax_f[a, 4] + _mod(x - ax_f[a, 4], ax_f[a, 1])
+    lo, hi = ax_f[a, 2], ax_f[a, 3]
+    out = (xr < lo - DOMAIN_TOL) or (xr > hi + DOMAIN_TOL) or not math.isfinite(xr)
+    if kind == WRAPPED and abs(xr - ax_f[a, 1] - lo) <= DOMAIN_TOL:
+        out = False
+    return out
+
+
+@device
+def _fold(pd, fold):
+    if fold == 0:
+        return _mod(pd, TWO_PI)
+    if fold == 1:
+        return _mod(pd, PI)
+    if fold == 2:
+        return abs(_mod(pd + PI, TWO_PI) - PI)
+    x = _mod(pd, PI)
+    return min(x, PI - x)
+
+
+# atan on [0, inf) by Cody & Waite's reduction and a rational approximation on [0, 0.66]
+# (the coefficients of Cephes' atan.c, S. L. Moshier): within 2 ulp of libm, without its call.
+_ATAN_P = (-8.750608600031904122785e-1, -1.615753718733365076637e1, -7.500855792314704667340e1,
+           -1.228866684490136173410e2, -6.485021904942025371773e1)
+_ATAN_Q = (2.485846490142306297962e1, 1.650270098316988542046e2, 4.328810604912902668951e2,
+           4.853903996359136964868e2, 1.945506571482613964425e2)
+_MOREBITS = 6.123233995736765886130e-17
+_T3P8 = 2.41421356237309504880
+
+
+@device
+def _atan_pos(x):
+    if x > _T3P8:
+        y, extra, x = HALF_PI, _MOREBITS, -1.0 / x
+    elif x <= 0.66:
+        y, extra = 0.0, 0.0
+    else:
+        y, extra, x = 0.25 * PI, 0.5 * _MOREBITS, (x - 1.0) / (x + 1.0)
+    z = x * x
+    p = (((_ATAN_P[0] * z + _ATAN_P[1]) * z + _ATAN_P[2]) * z + _ATAN_P[3]) * z + _ATAN_P[4]
+    q = ((((z + _ATAN_Q[0]) * z + _ATAN_Q[1]) * z + _ATAN_Q[2]) * z + _ATAN_Q[3]) * z + _ATAN_Q[4]
+    return y + ((x * (z * p / q) + x) + extra)
+
+
+@device
+def _atan2(y, x):
+    """``atan2(y, x)`` within 2 ulp of libm's (faster); libm's own outside the half plane
+    x > 0 (finite) and for NaN."""
+    if 0.0 < x < math.inf and abs(y) < math.inf:
+        return math.copysign(_atan_pos(abs(y) / x), y)
+    if x < 0.0 and -math.inf < x and abs(y) < math.inf and y != 0.0:
+        return math.copysign(PI - _atan_pos(abs(y) / -x), y)
+    return math.atan2(y, x)
+
+
+@device
+def _hypot(x, y):
+    """``hypot`` for the moderate values of unit-vector sums (within an ulp of libm's, faster)."""
+    return math.sqrt(x * x + y * y)
+
+
+@device
+def _rusinkiewicz(ix, iy, iz, ox, oy, oz, want_ph):
+    """``(θh, φh, θd, φd)`` of a pair (:func:`brdftab.geometry.io_to_hd`); φh is 0 unless
+    ``want_ph``."""
+    hx, hy, hz = ix + ox, iy + oy, iz + oz
+    rxy = _hypot(hx, hy)
+    norm = _hypot(rxy, hz)
+    th = _atan2(rxy, hz)
+    pole = rxy <= THETA_H_ZERO * norm
+    ch = hz / norm
+    sh = rxy / norm
+    if pole:
+        ph, cp, sp = 0.0, 1.0, 0.0
+    else:
+        ph = _atan2(hy, hx) if want_ph else 0.0
+        cp, sp = hx / rxy, hy / rxy
+    x1 = cp * ix + sp * iy
+    y1 = -sp * ix + cp * iy
+    dx = ch * x1 - sh * iz
+    dz = sh * x1 + ch * iz
+    return th, ph, _atan2(_hypot(dx, y1), dz), _atan2(y1, dx)
+
+
+@device
+def _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f):
+    """The four padded axis coordinates of a pair (``Grid._coordinates``; a 3-axis grid has a
+    one-node dummy axis first)."""
+    if kind == RUSINKIEWICZ:
+        th, ph, td, pd = _rusinkiewicz(ix, iy, iz, ox, oy, oz, ax_i[0, 5] == 0)
+        pd = _fold(pd, fold)
+        if ax_i[0, 5]:  # the dummy axis of an isotropic grid
+            return 0.0, th, td, pd
+        return th, ph, td, pd
+    ti = _atan2(_hypot(ix, iy), iz)
+    pi_ = _atan2(iy, ix)
+    to = _atan2(_hypot(ox, oy), oz)
+    po = _atan2(oy, ox)
+    if iso:
+        off = True
+        if ax_i[1, 0] > 1:
+            off = _axis_outside(pi_, 1, ax_i, ax_f)
+        if off:
+            shift = ax_f[1, 4] - pi_
+            pi_ = pi_ + shift
+            po = po + shift
+    if kind == SPHERICAL_SPECULAR:
+        to = to - ti
+        po = _mod(po - pi_, TWO_PI) - PI
+    return ti, pi_, to, po
+
+
+@kernel
+def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, valid, vmode, mode, out, flags):
+    """Interpolate at every pair into ``out[M, C]``; ``flags[M]`` = 1 where a cell without valid
+    corners lies below the horizon (the caller fills it). ``vmode``: every node valid
+    (:data:`ALL_VALID`), validity per node in the last column of ``vals`` (:data:`NODE_FLAG`),
+    or per node and channel in ``valid`` (:data:`CHANNEL_FLAGS`). Returns ``(outside pairs,
+    flagged pairs, wi zero vectors, wo zero vectors)``."""
+    m = wi.shape[0]
+    nc = out.shape[1]
+    n_axes = 4
+    first = 1 if ax_i[0, 5] else 0  # an isotropic grid's dummy axis takes no part
+    n_blocks = (m + BLOCK - 1) // BLOCK
+    n_out = 0
+    n_fill = 0
+    zi = 0
+    zo = 0
+    for b in prange(n_blocks):
+        den = np.empty(nc)
+        x = np.empty(n_axes)
+        lo = np.empty((BLOCK, n_axes), np.int64)
+        hi = np.empty((BLOCK, n_axes), np.int64)
+        fr = np.zeros((BLOCK, n_axes))
+        go = np.empty(BLOCK, np.bool_)
+        start = b * BLOCK
+        stop = min(m, start + BLOCK)
+        # pass 1: coordinates and cells (arithmetic); pass 2: the gathers, free of long
+        # dependency chains, so the memory accesses of successive pairs overlap
+        for i in range(start, stop):
+            j = i - start
+            go[j] = False
+            flags[i] = 0
+            ix, iy, iz, ox, oy, oz, st = _load(wi, wo, i, check)
+            if st != 0:
+                v = np.nan if st == 1 else 0.0
+                for c in range(nc):
+                    out[i, c] = v
+                if st == 3:
+                    zi += 1
+                elif st == 4:
+                    zo += 1
+                continue
+            x[0], x[1], x[2], x[3] = _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f)
+            outside = False
+            for a in range(first, n_axes):
+                if _axis_outside(x[a], a, ax_i, ax_f):
+                    outside = True
+            if outside:
+                n_out += 1
+                if mode != 2:
+                    for c in range(nc):
+                        out[i, c] = np.nan
+                    continue
+            bad = False
+            lo[j, 0] = 0
+            hi[j, 0] = 0
+            for a in range(first, n_axes):
+                k = _axis_index(x[a], a, ax_i, ax_f, xp, slope)
+                if k != k:
+                    bad = True
+                    break
+                # the cell: low and high node (as flat offsets) and the fraction
+                n = ax_i[a, 0]
+                fl = math.floor(k)
+                i0 = int(fl)
+                if ax_i[a, 1] == PERIODIC:  # k in [0, n)
+                    i0 = i0 % n if (i0 < 0 or i0 >= n) else i0
+                    i1 = i0 + 1 if i0 + 1 < n else 0
+                else:
+                    i0 = min(max(i0, 0), n - 1)
+                    i1 = min(i0 + 1, n - 1)
+                lo[j, a] = i0 * ax_i[a, 4]
+                hi[j, a] = i1 * ax_i[a, 4]
+                fr[j, a] = k - fl
+            if bad:
+                for c in range(nc):
+                    out[i, c] = np.nan
+                continue
+            go[j] = True
+            # prefetch the cell's rows now (they arrive while the next pairs' coordinates are
+            # computed), so the gathers of pass 2 mostly hit the cache
+            p0 = lo[j, 0] + lo[j, 1] + lo[j, 2] + lo[j, 3]
+            d2 = hi[j, 2] - lo[j, 2]
+            _prefetch_row(vals, p0)
+            _prefetch_row(vals, p0 + d2)
+            if first == 0 or hi[j, 1] != lo[j, 1]:
+                p1 = p0 + hi[j, 1] - lo[j, 1]
+                _prefetch_row(vals, p1)
+                _prefetch_row(vals, p1 + d2)
+        n_corners = 1 << (n_axes - first)
+        for i in range(start, stop):
+            j = i - start
+            if not go[j]:
+                continue
+            for c in range(nc):
+                out[i, c] = 0.0
+                den[c] = 0.0
+            dn = 0.0
+            slow = False
+            for sweep in range(2):
+                # sweep 0: the weighted sum over valid corners; sweep 1 (rare: no valid corner
+                # in some channel): the plain sum with missing samples read as 0, and whether
+                # every weighted corner is a below-horizon node holding 0
+                if sweep == 1 and not slow:
+                    break
+                if sweep == 0:
+                    # the cell's corners as nested loops over the axes (axis 0 outermost: the
+                    # order and the products of table._corners)
+                    for b0 in range(2 - first):
+                        w0 = fr[j, 0] if b0 else 1.0 - fr[j, 0]
+                        q0 = hi[j, 0] if b0 else lo[j, 0]
+                        for b1 in range(2):
+                            w1 = w0 * (fr[j, 1] if b1 else 1.0 - fr[j, 1])
+                            q1 = q0 + (hi[j, 1] if b1 else lo[j, 1])
+                            for b2 in range(2):
+                                w2 = w1 * (fr[j, 2] if b2 else 1.0 - fr[j, 2])
+                                q2 = q1 + (hi[j, 2] if b2 else lo[j, 2])
+                                for b3 in range(2):
+                                    w = w2 * (fr[j, 3] if b3 else 1.0 - fr[j, 3])
+                                    pos = q2 + (hi[j, 3] if b3 else lo[j, 3])
+                                    if w == 0.0:
+                                        continue
+                                    if vmode == ALL_VALID:
+                                        for c in range(nc):
+                                            out[i, c] += w * float(vals[pos, c])
+                                    elif vmode == NODE_FLAG:
+                                        if vals[pos, nc] != 0.0:
+                                            dn += w
+                                            for c in range(nc):
+                                                out[i, c] += w * float(vals[pos, c])
+                                    else:
+                                        for c in range(nc):
+                                            if valid[pos, c]:
+                                                out[i, c] += w * float(vals[pos, c])
+                                                den[c] += w
+                for corner in range(n_corners if sweep == 1 else 0):
+                    # weight multiplied in axis order as table._corners does; bit (n_axes - 1 - a)
+                    # of the corner picks the high node of axis a
+                    w = 1.0
+                    pos = 0
+                    for a in range(first, n_axes):
+                        if (corner >> (n_axes - 1 - a)) & 1:
+                            w *= fr[j, a]
+                            pos += hi[j, a]
+                        else:
+                            w *= 1.0 - fr[j, a]
+                            pos += lo[j, a]
+                    if w == 0.0:
+                        continue
+                    for c in range(nc):
+                        if den[c] > 0.0:
+                            continue
+                        v = float(vals[pos, c])
+                        ok = vals[pos, nc] != 0.0 if vmode == NODE_FLAG else valid[pos, c]
+                        if ok or v >= 0.0:
+                            out[i, c] += w * v
+                        if v != 0.0:
+                            den[c] = -1.0  # not all zero: NaN
+                if sweep == 0 and vmode != ALL_VALID:
+                    for c in range(nc):
+                        if vmode == NODE_FLAG:
+                            den[c] = dn
+                        if den[c] > 0.0:
+                            out[i, c] = out[i, c] / den[c]
+                        else:
+                            out[i, c] = 0.0
+                            den[c] = 0.0
+                            slow = True
+            if slow:
+                fill = False
+                for c in range(nc):
+                    if den[c] == 0.0:
+                        fill = True  # plain interpolation of below-horizon zeros: filled by the caller
+                    elif den[c] < 0.0:
+                        out[i, c] = np.nan
+                if fill:
+                    flags[i] = 1
+                    n_fill += 1
+    return n_out, n_fill, zi, zo
+
+
+def _axis_arrays(axes, strides, iso_dummy):
+    """Pack (up to 4) :class:`~brdftab.grids.axis.Axis` objects into the kernel's arrays,
+    padding a 3-axis grid with a leading one-node axis that is never outside."""
+    ax = list(axes)
+    st = list(strides)
+    if len(ax) == 3:
+        ax = [None] + ax
+        st = [0] + st
+    width = max(len(a) + 1 for a in ax if a is not None)
+    ax_i = np.zeros((4, 6), np.int64)
+    ax_f = np.zeros((4, 8))
+    xp = np.full((4, width), np.inf)
+    slope = np.zeros((4, width))
+    for k, (a, s) in enumerate(zip(ax, st)):
+        if a is None:
+            ax_i[k] = (1, PLAIN, 0, 0, 0, 1)
+            ax_f[k, 2:4] = (-np.inf, np.inf)
+            xp[k, 0] = 0.0
+            continue
+        n = len(a)
+        kind = PERIODIC if a.period is not None else (WRAPPED if a.wrap is not None else PLAIN)
+        warp = int(a.warp == "sqrt")
+        if kind == PERIODIC:
+            nodes = np.append(a.values, a.values[0] + a.period)
+        else:
+            nodes = a._t(a.values)
+        d = np.diff(nodes)
+        uniform = bool(nodes.size > 1 and np.all(np.abs(d - d.mean()) <= 0.01 * d.mean()))
+        ax_i[k] = (n, kind, warp, int(uniform), s, 0)
+        ax_f[k, :6] = (a.period or 0.0, a.wrap or 0.0, a.domain[0], a.domain[1], a.values[0], a.values[-1])
+        if uniform:
+            ax_f[k, 6] = nodes[0]
+            ax_f[k, 7] = (nodes.size - 1) / (nodes[-1] - nodes[0])
+        xp[k, :nodes.size] = nodes
+        if nodes.size > 1:
+            slope[k, :nodes.size - 1] = (np.arange(1.0, nodes.size) - np.arange(nodes.size - 1.0)) / d
+    return ax_i, ax_f, xp, slope
+
+
+#: Value arrays at least this large are placed on 2 MiB pages where the system allows it.
+LARGE_PAGE_BYTES = 4 << 20
+_HUGE = 2 << 20
+
+
+def _large_pages(shape, dtype):
+    """An empty array, on transparent huge pages when it is large and the system grants them
+    (``madvise``): interpolation reads a few nodes at random places of a table of tens of MB,
+    and with 4 KiB pages nearly every read also misses the address translation cache."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    if nbytes < LARGE_PAGE_BYTES:
+        return np.empty(shape, dtype)
+    import mmap
+
+    advice = getattr(mmap, "MADV_HUGEPAGE", None)
+    if advice is None:
+        return np.empty(shape, dtype)
+    buf = mmap.mmap(-1, nbytes + _HUGE)
+    raw = np.frombuffer(buf, np.uint8)
+    offset = (-raw.ctypes.data) % _HUGE
+    try:
+        buf.madvise(advice, offset, len(buf) - offset)
+    except (OSError, ValueError):
+        pass
+    return raw[offset:offset + nbytes].view(dtype).reshape(shape)
+
+
+class TablePlan:
+    """What :func:`table_eval` needs of a table, computed once and cached on it: the values
+    with horizon ghosts as one contiguous ``[nodes, C]`` array in the stored dtype (with a
+    column of node validity when validity is per node), the valid mask when it differs between
+    channels, and the packed axes."""
+
+    def __init__(self, grid, values, valid, isotropic):
+        c = values.shape[-1]
+        self.n_channels = c
+        flat = np.asarray(values).reshape(-1, c)
+        self.valid = np.ones((1, 1), np.bool_)
+        if valid is None:
+            self.vmode = ALL_VALID
+            self.vals = _large_pages(flat.shape, flat.dtype)
+            self.vals[...] = flat
+        else:
+            ok = np.asarray(valid).reshape(-1, c)
+            per_node = ok[:, 0]
+            if np.array_equal(np.broadcast_to(per_node[:, None], ok.shape), ok):
+                # validity per node: a last column of 1/0 beside the values (one cache line)
+                self.vmode = NODE_FLAG
+                self.vals = _large_pages((flat.shape[0], c + 1), flat.dtype)
+                self.vals[:, :c] = flat
+                self.vals[:, c] = per_node
+            else:
+                self.vmode = CHANNEL_FLAGS
+                self.vals = _large_pages(flat.shape, flat.dtype)
+                self.vals[...] = flat
+                self.valid = np.ascontiguousarray(ok)
+        shape = grid.shape
+        strides = [int(np.prod(shape[k + 1:], dtype=np.int64)) for k in range(len(shape))]
+        self.ax_i, self.ax_f, self.xp, self.slope = _axis_arrays(grid.axes, strides, len(shape) == 3)
+        p = getattr(grid, "parameterization", "")
+        if p == "spherical":
+            self.kind = SPHERICAL_SPECULAR if grid.relative_to == "specular" else SPHERICAL
+            self.fold = 0
+        else:
+            self.kind = RUSINKIEWICZ
+            self.fold = FOLDS[grid.phi_d_fold]
+        self.iso = bool(isotropic)
+
+    def run(self, wi, wo, check, mode, out, flags):
+        """:func:`table_eval` over all pairs (in chunks when they are not C-contiguous); returns
+        its counts summed."""
+        total = np.zeros(4, np.int64)
+        for rows, a, b in contiguous_pairs(wi, wo):
+            total += table_eval(a, b, check, self.kind, self.fold, self.iso, self.ax_i, self.ax_f, self.xp,
+                                self.slope, self.vals, self.valid, self.vmode, OUTSIDE[mode], out[rows], flags[rows])
+        return tuple(int(x) for x in total)
+
+
+# ------------------------------------------------------------------------------------------
+# RGL .bsdf files (Mitsuba 3's `measured`)
+
+
+@device
+def _elevation(x, y, z):
+    d = math.sqrt(x * x + y * y + (z - 1.0) ** 2)
+    return 2.0 * math.asin(min(max(0.5 * d, -1.0), 1.0))
+
+
+@device
+def _theta2u(t):
+    return math.sqrt((t if t > 0.0 else 0.0) * (2.0 / PI))
+
+
+@device
+def _lerp(a, b, t):
+    return a + t * (b - a)
+
+
+@device
+def _param_cell(p, vals):
+    """``(index, weight of index + 1)`` of parameter ``p`` (``Marginal2D._corners``)."""
+    n = vals.shape[0]
+    if n == 1:
+        return 0, 0.0
+    # searchsorted(vals, p, "left") - 1, clipped to [0, n - 2]
+    lo, hi = 0, n
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if vals[mid] < p:
+            lo = mid + 1
+        else:
+            hi = mid
+    i = min(max(lo - 1, 0), n - 2)
+    w1 = (p - vals[i]) / (vals[i + 1] - vals[i])
+    w1 = min(max(w1, 0.0), 1.0)
+    return i, w1
+
+
+@device
+def _bilinear2(table, x, y):
+    """A raw bilinear table ``[H, W]`` at ``(x, y)`` of the unit square (``Marginal2D.eval``)."""
+    h, w = table.shape
+    x = min(max(x, 0.0), 1.0) * (w - 1)
+    y = min(max(y, 0.0), 1.0) * (h - 1)
+    ix = min(int(x), w - 2)
+    iy = min(int(y), h - 2)
+    tx, ty = x - ix, y - iy
+    return _lerp(_lerp(table[iy, ix], table[iy, ix + 1], tx), _lerp(table[iy + 1, ix], table[iy + 1, ix + 1], tx), ty)
+
+
+@device
+def _g3(t, s0, s1, s2, s3, w0, w1, w2, w3, iy, ix):
+    """Σ w_c · t[s_c, iy, ix] over the corners of non-zero weight (``Marginal2D._gather``)."""
+    out = 0.0
+    if w0 != 0.0:
+        out += w0 * t[s0, iy, ix]
+    if w1 != 0.0:
+        out += w1 * t[s1, iy, ix]
+    if w2 != 0.0:
+        out += w2 * t[s2, iy, ix]
+    if w3 != 0.0:
+        out += w3 * t[s3, iy, ix]
+    return out
+
+
+@device
+def _g2(t, s0, s1, s2, s3, w0, w1, w2, w3, iy):
+    out = 0.0
+    if w0 != 0.0:
+        out += w0 * t[s0, iy]
+    if w1 != 0.0:
+        out += w1 * t[s1, iy]
+    if w2 != 0.0:
+        out += w2 * t[s2, iy]
+    if w3 != 0.0:
+        out += w3 * t[s3, iy]
+    return out
+
+
+@kernel
+def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, p_phi, p_theta, st_phi, st_theta,
+             data, cond, marg, spectra, ndf, sigma, lo, hi, t, out):
+    """f (``divide``: f·cosθo / cosθo, with ``hold``) or f·cosθo of an RGL file at every pair,
+    into ``out[M, n]`` (channels ``lo``, ``hi``, weight ``t`` of the stored spectra). Returns
+    ``(wi zero vectors, wo zero vectors)``."""
+    m = wi.shape[0]
+    nc = lo.shape[0]
+    ns = spectra.shape[3]
+    h, w = data.shape[1], data.shape[2]
+    res = spectra.shape[1]
+    c0 = math.cos(theta_hold)
+    s0 = math.sin(theta_hold)
+    n_blocks = (m + BLOCK - 1) // BLOCK
+    zi = 0
+    zo = 0
+    for b in prange(n_blocks):
+        spec = np.empty(ns)
+        for i in range(b * BLOCK, min(m, (b + 1) * BLOCK)):
+            ix, iy, iz, ox, oy, oz, st = _load(wi, wo, i, check)
+            if st != 0:
+                v = np.nan if st == 1 else 0.0
+                for c in range(nc):
+                    out[i, c] = v
+                if st == 3:
+                    zi += 1
+                elif st == 4:
+                    zo += 1
+                continue
+            if hold and oz < c0:
+                r = math.hypot(ox, oy)
+                ox *= s0 / r
+                oy *= s0 / r
+                oz = c0
+            if not iso and reduction >= 2:
+                # mulsign_neg: wi to y <= 0 (and x <= 0 for a quarter); a half turns both axes
+                sy = -1.0 if iy >= 0.0 else 1.0
+                sx = (-1.0 if ix >= 0.0 else 1.0) if reduction == 4 else sy
+                ix, iy, ox, oy = ix * sx, iy * sy, ox * sx, oy * sy
+            mx, my, mz = ix + ox, iy + oy, iz + oz
+            mn = math.sqrt(mx * mx + my * my + mz * mz)
+            mx, my, mz = mx / mn, my / mn, mz / mn
+            th_i = _elevation(ix, iy, iz)
+            ph_i = _atan2(iy, ix)
+            th_m = _elevation(mx, my, mz)
+            ph_m = _atan2(my, mx)
+            ui0 = _theta2u(th_i)
+            ui1 = (ph_i + PI) / TWO_PI
+            uy = ((ph_m - ph_i if iso else ph_m) + PI) / TWO_PI
+            um0 = _theta2u(th_m)
+            um1 = uy - math.floor(uy)
+            # parameter corners (φi, θi): slices s_k, weights w_k (first parameter most significant)
+            a, wa = _param_cell(ph_i, p_phi)
+            bb, wb = _param_cell(th_i, p_theta)
+            sa0, sa1 = a * st_phi, (a + 1) * st_phi
+            sb0, sb1 = bb * st_theta, (bb + 1) * st_theta
+            if p_phi.shape[0] == 1:
+                sa0, sa1 = 0, 0
+            if p_theta.shape[0] == 1:
+                sb0, sb1 = 0, 0
+            wa0, wa1 = 1.0 - wa, wa
+            if p_phi.shape[0] == 1:
+                wa0, wa1 = 1.0, 0.0
+            wb0, wb1 = 1.0 - wb, wb
+            if p_theta.shape[0] == 1:
+                wb0, wb1 = 1.0, 0.0
+            q0, q1, q2, q3 = sa0 + sb0, sa0 + sb1, sa1 + sb0, sa1 + sb1
+            v0, v1, v2, v3 = 1.0 * wa0 * wb0, 1.0 * wa0 * wb1, 1.0 * wa1 * wb0, 1.0 * wa1 * wb1
+            # vndf.invert(u_m)
+            sxx = min(max(um0, 0.0), 1.0) * (w - 1)
+            syy = min(max(um1, 0.0), 1.0) * (h - 1)
+            px = min(int(sxx), w - 2)
+            py = min(int(syy), h - 2)
+            fx, fy = sxx - px, syy - py
+            d00 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py, px)
+            d10 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py, px + 1)
+            d01 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px)
+            d11 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px + 1)
+            e0, e1 = _lerp(d00, d01, fy), _lerp(d10, d11, fy)
+            fx = fx * _lerp(e0, e1, 0.5 * fx) / (w - 1)
+            if px > 0:
+                fx = fx + _lerp(_g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, px - 1),
+                                _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px - 1), fy)
+            r0 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, w - 2)
+            r1 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, w - 2)
+            fx = fx / _lerp(r0, r1, fy)
+            fy = fy * _lerp(r0, r1, 0.5 * fy) / (h - 1)
+            if py > 0:
+                fy = fy + _g2(marg, q0, q1, q2, q3, v0, v1, v2, v3, py - 1)
+            # spectra at the warped sample (every corner, as the reader's lookup)
+            x = min(max(fx, 0.0), 1.0) * (res - 1)
+            y = min(max(fy, 0.0), 1.0) * (res - 1)
+            jx = min(int(x), res - 2)
+            jy = min(int(y), res - 2)
+            tx, ty = x - jx, y - jy
+            for k in range(ns):
+                spec[k] = 0.0
+            for corner in range(4):
+                q = q0 if corner == 0 else (q1 if corner == 1 else (q2 if corner == 2 else q3))
+                wq = v0 if corner == 0 else (v1 if corner == 1 else (v2 if corner == 2 else v3))
+                if wq == 0.0:
+                    continue  # adds 0 (the stored spectra are finite: the reader checks them)
+                for k in range(ns):
+                    g00 = spectra[q, jy, jx, k]
+                    g10 = spectra[q, jy, jx + 1, k]
+                    g01 = spectra[q, jy + 1, jx, k]
+                    g11 = spectra[q, jy + 1, jx + 1, k]
+                    l0 = g00 + tx * (g10 - g00)
+                    l1 = g01 + tx * (g11 - g01)
+                    spec[k] = spec[k] + wq * (l0 + ty * (l1 - l0))
+            scale = 1.0
+            if jacobian:
+                scale = _bilinear2(ndf, um0, um1) / (4.0 * _bilinear2(sigma, ui0, ui1))
+            for c in range(nc):
+                v = spec[lo[c]] * (1.0 - t[c]) + spec[hi[c]] * t[c]
+                if jacobian:
+                    v = v * scale
+                if divide:
+                    v = v / oz
+                out[i, c] = v
+    return zi, zo
