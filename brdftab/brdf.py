@@ -34,7 +34,7 @@ from .errors import ParameterError
 from .geometry import as_directions, normalize
 from .params import Kind, parse_params, register_kind
 
-__all__ = ["BRDF", "Model", "EVAL_CHUNK", "ORIGINS", "numpy_reference"]
+__all__ = ["BRDF", "Model", "EVAL_CHUNK", "ORIGINS", "numpy_reference", "compiled_enabled"]
 
 #: The values of :attr:`BRDF.origin`.
 ORIGINS = ("analytic", "measured", "unknown")
@@ -60,6 +60,11 @@ def numpy_reference():
         yield
     finally:
         _COMPILED.pop()
+
+
+def compiled_enabled() -> bool:
+    """False inside :func:`numpy_reference` (BRDFs with their own compiled evaluation check it)."""
+    return _COMPILED[-1]
 
 
 def _unit(w, name):

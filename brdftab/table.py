@@ -65,7 +65,7 @@ import xarray as xr
 
 from ._signals import read_array
 from ._version import __version__
-from .brdf import BRDF, ORIGINS
+from .brdf import BRDF, ORIGINS, compiled_enabled
 from .quadrature import gauss_legendre
 from .channels import Layout
 from .errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
@@ -403,8 +403,8 @@ class Table(BRDF):
         """f(wi, wo) by multilinear interpolation (see :meth:`BRDF.eval` and the module
         docstring), in one compiled pass per pair written into the result: the same
         normalization, NaN and horizon rules as every BRDF, then grid coordinates, weights over
-        the valid nodes and the channels."""
-        if self._slab_mode():
+        the valid nodes and the channels (numpy inside :func:`brdftab.brdf.numpy_reference`)."""
+        if self._slab_mode() or not compiled_enabled():
             return BRDF.eval(self, wi, wo, wavelengths, assume_unit=assume_unit)
         from .geometry import as_directions
 
@@ -416,7 +416,7 @@ class Table(BRDF):
         return self._channels(out, lam, n).reshape(lead + (n,))
 
     def _eval(self, wi, wo, lam, n):
-        if self._slab_mode():
+        if self._slab_mode() or not compiled_enabled():
             return self._eval_numpy(wi, wo, lam, n)
         return self._channels(self._interpolate(wi, wo, False), lam, n)
 

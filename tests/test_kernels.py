@@ -449,3 +449,36 @@ def test_zernike_and_he_torrance_add_into_a_sum():
     ht = models.create("he-torrance-1991", cone_half_width=np.radians(4.5), **_HTSG["pyromark"])
     white = models.create("lambert", albedo=0.3)
     _assert_parity(models.create("sum", terms=[white, zernike, ht]), seed=14)
+
+
+def test_tables_and_rgl_files_take_the_numpy_path_inside_the_reference(tmp_path, monkeypatch):
+    """numpy_reference() holds for tables and RGL files too (the benchmarks' and parity tests'
+    reference), and a table read from a .bsdf file can be a term of a compiled sum."""
+    import brdftab
+    from brdftab.grids import RusinkiewiczGrid
+
+    gold = models.create("microfacet", distribution="ggx", alpha=0.3, fresnel="conductor", n=[0.2, 0.45, 1.3],
+                         k=[3.4, 2.6, 1.8])
+    table = brdftab.tabulate(gold, RusinkiewiczGrid(30, 30, 60), progress=False)
+    brdftab.save(gold, tmp_path / "g.bsdf")
+    rgl = brdftab.open(tmp_path / "g.bsdf")
+    wi, wo = _pairs_upper(4000)
+    for brdf, compiled in ((table, "_interpolate"), (rgl, "_compiled")):
+        got = brdf.eval(wi, wo)
+        with monkeypatch.context() as mp, numpy_reference():
+            mp.setattr(brdf, compiled, None)  # the compiled evaluation is not called
+            ref = brdf.eval(wi, wo)
+        assert np.array_equal(np.isnan(got), np.isnan(ref))
+        ok = ~np.isnan(ref)
+        assert np.max(np.abs(got[ok] - ref[ok]) / np.maximum(np.abs(ref[ok]), 1e-300)) <= 1e-10
+        assert brdf.kernel(None, 3) is None
+        both = models.create("sum", terms=[brdf, models.create("lambert", albedo=0.1)])
+        np.testing.assert_allclose(both.eval(wi, wo), got + 0.1 / np.pi, rtol=1e-12)
+
+
+def _pairs_upper(n, seed=9):
+    rng = np.random.default_rng(seed)
+    v = rng.normal(size=(2, n, 3))
+    v[..., 2] = np.abs(v[..., 2])
+    v /= np.linalg.norm(v, axis=-1, keepdims=True)
+    return v[0], v[1]

@@ -248,8 +248,13 @@ class RGLBSDF(BRDF):
     def eval(self, wi, wo, wavelengths=None, *, assume_unit: bool = False) -> np.ndarray:
         """f(wi, wo) [sr⁻¹] (see :meth:`_eval_numpy` for the hold near the horizon), in one compiled
         pass per pair written into the result (:func:`brdftab._interp_kernels.rgl_eval`), with
-        the normalization, NaN and horizon rules of every BRDF."""
+        the normalization, NaN and horizon rules of every BRDF (numpy inside
+        :func:`brdftab.brdf.numpy_reference`)."""
+        from ..brdf import BRDF, compiled_enabled
         from ..geometry import as_directions
+
+        if not compiled_enabled():
+            return BRDF.eval(self, wi, wo, wavelengths, assume_unit=assume_unit)
 
         wi, wo = as_directions(wi, wo)
         lam = self.layout.resolve(wavelengths)
@@ -259,20 +264,24 @@ class RGLBSDF(BRDF):
         return out.reshape(lead + (lo.size,))
 
     def _eval(self, wi, wo, lam, n):
+        from ..brdf import compiled_enabled
+
+        if not compiled_enabled():
+            return self._eval_numpy(wi, wo, lam, n)
         lo, hi, t = self._channel_weights(lam, n)
         return self._compiled(wi, wo, lo, hi, t, check=False, hold=True)
 
     def _kernel_data(self):
         """The file's tables as the compiled evaluation reads them (contiguous float64); cached."""
-        if getattr(self, "_kernel", None) is None:
+        if getattr(self, "_kernel_tables", None) is None:
             v = self._vndf
-            self._kernel = dict(
+            self._kernel_tables = dict(
                 p_phi=np.ascontiguousarray(v.params[0]), p_theta=np.ascontiguousarray(v.params[1]),
                 st_phi=int(v.strides[0]), st_theta=int(v.strides[1]),
                 data=np.ascontiguousarray(v.data), cond=np.ascontiguousarray(v.cond),
                 marg=np.ascontiguousarray(v.marg), spectra=np.ascontiguousarray(self._spectra),
                 ndf=np.ascontiguousarray(self._ndf.data[0]), sigma=np.ascontiguousarray(self._sigma.data[0]))
-        return self._kernel
+        return self._kernel_tables
 
     def _compiled(self, wi, wo, lo, hi, t, check, hold):
         """f (``hold``: with the hold of :meth:`_eval_numpy`) or, without it, f·cosθo at
@@ -325,8 +334,13 @@ class RGLBSDF(BRDF):
         return out
 
     def eval_cos(self, wi, wo, wavelengths=None):
-        """f·cosθo exactly as Mitsuba 3's ``measured`` plugin evaluates the file (no hold), compiled."""
+        """f·cosθo exactly as Mitsuba 3's ``measured`` plugin evaluates the file (no hold), compiled
+        (numpy inside :func:`brdftab.brdf.numpy_reference`)."""
+        from ..brdf import compiled_enabled
         from ..geometry import as_directions
+
+        if not compiled_enabled():
+            return self._eval_cos_numpy(wi, wo, wavelengths)
 
         wi, wo = as_directions(wi, wo)
         lead = wi.shape[:-1]
