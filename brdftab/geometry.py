@@ -23,7 +23,11 @@ Eurographics Workshop on Rendering (1998); W. Matusik et al., MERL BRDF database
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from ._jit import device
 
 __all__ = [
     "THETA_H_ZERO",
@@ -184,6 +188,38 @@ def hd_to_io(theta_h, phi_h, theta_d, phi_d):
     th, ph, td, pd = np.broadcast_arrays(*(np.asarray(a, float) for a in (theta_h, phi_h, theta_d, phi_d)))
     return _hd_to_io_trig(np.cos(th), np.sin(th), np.cos(ph), np.sin(ph),
                           np.cos(td), np.sin(td), np.cos(pd), np.sin(pd))
+
+
+@device
+def pair_scalar(wi, wo, i):
+    """``(wix, wiy, wiz, wox, woy, woz)``: row ``i`` of the pair arrays ``wi``, ``wo[M, 3]`` (compiled kernels)."""
+    return wi[i, 0], wi[i, 1], wi[i, 2], wo[i, 0], wo[i, 1], wo[i, 2]
+
+
+@device
+def half_vector_scalar(wix, wiy, wiz, wox, woy, woz):
+    """``(hx, hy, hz, cosθd)`` of one pair for compiled kernels: h = normalize(wi + wo) and
+    cosθd = wi·h = |wi + wo| / 2 (the arithmetic of the models' array code)."""
+    hx = wix + wox
+    hy = wiy + woy
+    hz = wiz + woz
+    norm = math.sqrt(hx * hx + hy * hy + hz * hz)
+    return hx / norm, hy / norm, hz / norm, 0.5 * norm
+
+
+@device
+def hd_to_io_scalar(cth, sth, cph, sph_, ctd, std, cpd, spd):
+    """``(wix, wiy, wiz, wox, woy, woz)`` of one node for compiled kernels: :func:`_hd_to_io_trig`'s
+    arithmetic, the same bits."""
+    dx = std * cpd
+    dy = std * spd
+    dz = ctd
+    ax = cth * dx + sth * dz
+    az = -sth * dx + cth * dz
+    bx = cth * dx - sth * dz
+    bz = sth * dx + cth * dz
+    return (cph * ax - sph_ * dy, sph_ * ax + cph * dy, az,
+            -(cph * bx) + sph_ * dy, -(sph_ * bx) - cph * dy, bz)
 
 
 def _hd_to_io_trig(cth, sth, cph, sph_, ctd, std, cpd, spd):

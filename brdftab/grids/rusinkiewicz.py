@@ -15,7 +15,7 @@ import numpy as np
 
 from .._jit import kernel
 from ..errors import ParameterError
-from ..geometry import _hd_to_io_trig, io_to_hd
+from ..geometry import _hd_to_io_trig, hd_to_io_scalar, io_to_hd
 from ..params import Param, unknown
 from .axis import (HALF_PI, MAX_AXIS_NODES, PHI_D_FOLDS, SAMPLE_POSITIONS, TWO_PI, Axis, angle_axis, check_range,
                    count, fold_phi_d, uniform_values)
@@ -252,8 +252,8 @@ def _infer(ds, fold):
 
 @kernel
 def _directions_into(cth, sth, cph, sph, ctd, std, cpd, spd, start, stop, wi, wo):
-    """:meth:`RusinkiewiczGrid.directions_into`: the arithmetic of
-    :func:`brdftab.geometry._hd_to_io_trig` per node, from the per-axis cosines and sines."""
+    """:meth:`RusinkiewiczGrid.directions_into`: :func:`brdftab.geometry.hd_to_io_scalar` per
+    node, from the per-axis cosines and sines."""
     nph, ntd, npd = cph.shape[0], ctd.shape[0], cpd.shape[0]
     for k in range(stop - start):
         f = start + k
@@ -263,16 +263,5 @@ def _directions_into(cth, sth, cph, sph, ctd, std, cpd, spd, start, stop, wi, wo
         f //= ntd
         iph = f % nph
         ih = f // nph
-        dx = std[itd] * cpd[ipd]
-        dy = std[itd] * spd[ipd]
-        dz = ctd[itd]
-        ax = cth[ih] * dx + sth[ih] * dz
-        az = -sth[ih] * dx + cth[ih] * dz
-        bx = cth[ih] * dx - sth[ih] * dz
-        bz = sth[ih] * dx + cth[ih] * dz
-        wi[k, 0] = cph[iph] * ax - sph[iph] * dy
-        wi[k, 1] = sph[iph] * ax + cph[iph] * dy
-        wi[k, 2] = az
-        wo[k, 0] = -(cph[iph] * bx) + sph[iph] * dy
-        wo[k, 1] = -(sph[iph] * bx) - cph[iph] * dy
-        wo[k, 2] = bz
+        wi[k, 0], wi[k, 1], wi[k, 2], wo[k, 0], wo[k, 1], wo[k, 2] = hd_to_io_scalar(
+            cth[ih], sth[ih], cph[iph], sph[iph], ctd[itd], std[itd], cpd[ipd], spd[ipd])

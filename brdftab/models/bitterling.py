@@ -127,10 +127,12 @@ import numba
 
 from brdftab._jit import OPTIONS
 from brdftab.models.bitterling import alpha_of_theta_scalar
+from brdftab.geometry import pair_scalar
 from brdftab.models.components import get
 from brdftab.models.fresnel import dielectric_scalar
 from brdftab.models.fused import as_device
 
+_P = as_device(pair_scalar)
 _ALPHA = as_device(alpha_of_theta_scalar)
 _D = as_device(get("distribution", {dist!r}).jit_D)
 _L = as_device(get("distribution", {dist!r}).jit_lambda)
@@ -143,12 +145,7 @@ def run(wi, wo, state, out, k, diffuse, add):
     for i in range(wi.shape[0]):
         if state[i] != 1:
             continue
-        wix = wi[i, 0]
-        wiy = wi[i, 1]
-        wiz = wi[i, 2]
-        wox = wo[i, 0]
-        woy = wo[i, 1]
-        woz = wo[i, 2]
+        wix, wiy, wiz, wox, woy, woz = _P(wi, wo, i)
         a = _ALPHA(wix, wiy, wiz, k[0], k[1], k[2], k[3])
         pa = (a, a)
         hx = wix + wox
@@ -169,10 +166,11 @@ def _alpha_theta_kernel(dist):
     registered component's scalar D and Λ at one α per pair; generated so that an edit of a
     scalar form it inlines compiles anew)."""
     from .._jit import generated_module, source_hash
+    from ..geometry import pair_scalar
     from .components import get
     from .fresnel import dielectric_scalar
 
     cls = get("distribution", dist)
-    source = _KERNEL.format(dist=dist, digest=source_hash(alpha_of_theta_scalar, cls.jit_D, cls.jit_lambda,
-                                                          dielectric_scalar))
+    source = _KERNEL.format(dist=dist, digest=source_hash(alpha_of_theta_scalar, pair_scalar, cls.jit_D,
+                                                          cls.jit_lambda, dielectric_scalar))
     return generated_module("alpha_theta", source).run

@@ -46,9 +46,12 @@ import numba
 import numpy as np
 
 from brdftab._jit import OPTIONS
+from brdftab.geometry import half_vector_scalar, pair_scalar
 from brdftab.models.components import get
 from brdftab.models.fused import as_device
 
+_H = as_device(half_vector_scalar)
+_P = as_device(pair_scalar)
 _D = as_device(get("distribution", {dist!r}).jit_D)
 _G = as_device(get("shadowing", {shadow!r}).jit_G)
 _F = as_device(get("fresnel", {fres!r}).jit_F)
@@ -70,20 +73,8 @@ def run(wi, wo, state, out, pd, pf, add):
         cosd = np.empty(BLOCK)
         for j in range(size):
             i = i0 + j
-            wix = wi[i, 0]
-            wiy = wi[i, 1]
-            wiz = wi[i, 2]
-            wox = wo[i, 0]
-            woy = wo[i, 1]
-            woz = wo[i, 2]
-            hx = wix + wox
-            hy = wiy + woy
-            hz = wiz + woz
-            norm = math.sqrt(hx * hx + hy * hy + hz * hz)
-            hx = hx / norm
-            hy = hy / norm
-            hz = hz / norm
-            cosd[j] = 0.5 * norm
+            wix, wiy, wiz, wox, woy, woz = _P(wi, wo, i)
+            hx, hy, hz, cosd[j] = _H(wix, wiy, wiz, wox, woy, woz)
 {lambda_use}
             base[j] = _D(hx, hy, hz, pd) * _G(wix, wiy, wiz, wox, woy, woz, hx, hy, hz, lam_i, lam_o) / (4.0 * wiz * woz)
         for c in range(nc):
@@ -124,7 +115,10 @@ def _microfacet_kernel(dist, shadow, fres):
     else:
         lambda_def = ""
         lambda_use = "            lam_i = 0.0\n            lam_o = 0.0"
-    source = _MICROFACET.format(names=f"{dist.name} / {shadow.name} / {fres.name}", digest=source_hash(*parts),
+    from ..geometry import half_vector_scalar, pair_scalar
+
+    source = _MICROFACET.format(names=f"{dist.name} / {shadow.name} / {fres.name}",
+                                digest=source_hash(half_vector_scalar, pair_scalar, *parts),
                                 dist=dist.name, shadow=shadow.name, fres=fres.name, lambda_def=lambda_def,
                                 lambda_use=lambda_use)
     return generated_module("microfacet", source).run
@@ -137,9 +131,12 @@ import math
 import numba
 
 from brdftab._jit import OPTIONS
+from brdftab.geometry import half_vector_scalar, hd_to_io_scalar
 from brdftab.models.components import get
 from brdftab.models.fused import as_device
 
+_H = as_device(half_vector_scalar)
+_HD = as_device(hd_to_io_scalar)
 _G = as_device(get("shadowing", {shadow!r}).jit_G)
 {lambda_def}{fresnel_def}
 
@@ -151,31 +148,13 @@ def run(cth, sth, cph, sph, ctd, std, cpd, spd, d_nodes, f_nodes, pd, pf, out, i
         for iph in range(cph.shape[0]):
             for itd in range(ctd.shape[0]):
                 for ipd in range(cpd.shape[0]):
-                    dx = std[itd] * cpd[ipd]
-                    dy = std[itd] * spd[ipd]
-                    dz = ctd[itd]
-                    ax = cth[ih] * dx + sth[ih] * dz
-                    az = -sth[ih] * dx + cth[ih] * dz
-                    bx = cth[ih] * dx - sth[ih] * dz
-                    bz = sth[ih] * dx + cth[ih] * dz
-                    wix = cph[iph] * ax - sph[iph] * dy
-                    wiy = sph[iph] * ax + cph[iph] * dy
-                    wiz = az
-                    wox = -(cph[iph] * bx) + sph[iph] * dy
-                    woy = -(sph[iph] * bx) - cph[iph] * dy
-                    woz = bz
+                    wix, wiy, wiz, wox, woy, woz = _HD(cth[ih], sth[ih], cph[iph], sph[iph], ctd[itd], std[itd],
+                                                       cpd[ipd], spd[ipd])
                     if not (wiz > horizon and woz > horizon):
                         for c in range(nc):
                             out[ih, iph, itd, ipd, c] = 0.0
                         continue
-                    hx = wix + wox
-                    hy = wiy + woy
-                    hz = wiz + woz
-                    norm = math.sqrt(hx * hx + hy * hy + hz * hz)
-                    hx = hx / norm
-                    hy = hy / norm
-                    hz = hz / norm
-                    cos_d = 0.5 * norm
+                    hx, hy, hz, cos_d = _H(wix, wiy, wiz, wox, woy, woz)
 {lambda_use}
                     base = d_nodes[ih, iph] * _G(wix, wiy, wiz, wox, woy, woz, hx, hy, hz, lam_i, lam_o) \\
                         / (4.0 * wiz * woz)
@@ -194,6 +173,8 @@ def microfacet_tabulation(dist, shadow, fres):
 
 
 def _microfacet_tabulation(dist, shadow, fres):
+    from ..geometry import half_vector_scalar, hd_to_io_scalar
+
     needs_lambda = shadow.jit_needs_lambda
     per_pair_f = fres.depends == "pair"
     parts = [shadow.jit_G] + ([dist.jit_lambda] if needs_lambda else []) + ([fres.jit_F] if per_pair_f else [])
@@ -213,6 +194,7 @@ def _microfacet_tabulation(dist, shadow, fres):
         fresnel_def = ""
         fresnel_use = f"{pad}    out[ih, iph, itd, ipd, c] = base * f_nodes[itd, c]"
     source = _MICROFACET_RUSINKIEWICZ.format(
-        names=f"{dist.name} / {shadow.name} / {fres.name}", digest=source_hash(*parts), shadow=shadow.name,
+        names=f"{dist.name} / {shadow.name} / {fres.name}",
+        digest=source_hash(half_vector_scalar, hd_to_io_scalar, *parts), shadow=shadow.name,
         lambda_def=lambda_def, lambda_use=lambda_use, fresnel_def=fresnel_def, fresnel_use=fresnel_use)
     return generated_module("microfacet_rusinkiewicz", source).run

@@ -196,7 +196,7 @@ from . import pyramid_walk
 from .pyramid_walk import cell_of, ratio_in_cell, ratio_one
 from ._registry import register
 from .combinators import Sum
-from .distributions import beckmann_D_scalar, d_beckmann
+from .distributions import d_beckmann
 from .microfacet import ComposedParams
 
 __all__ = ["THETA_P", "FACET_WEIGHT", "facet_normals", "visible_area", "PyramidDistribution", "PyramidShadowing",

@@ -324,11 +324,14 @@ import numba
 import numpy as np
 
 from brdftab._jit import OPTIONS
+from brdftab.geometry import half_vector_scalar, pair_scalar
 from brdftab.models.components import get
 from brdftab.models.fused import as_device
 from brdftab.models.torrance_sparrow import slope_term_scalar
 
 _S = as_device(slope_term_scalar)
+_H = as_device(half_vector_scalar)
+_P = as_device(pair_scalar)
 _G = as_device(get("shadowing", "v-groove").jit_G)
 _F = as_device(get("fresnel", {fres!r}).jit_F)
 
@@ -347,20 +350,8 @@ def run(wi, wo, state, out, k, pf, rho_pi, add):
         size = min(BLOCK, m - i0)
         for j in range(size):
             i = i0 + j
-            wix = wi[i, 0]
-            wiy = wi[i, 1]
-            wiz = wi[i, 2]
-            wox = wo[i, 0]
-            woy = wo[i, 1]
-            woz = wo[i, 2]
-            hx = wix + wox
-            hy = wiy + woy
-            hz = wiz + woz
-            norm = math.sqrt(hx * hx + hy * hy + hz * hz)
-            hx = hx / norm
-            hy = hy / norm
-            hz = hz / norm
-            cosd[j] = 0.5 * norm
+            wix, wiy, wiz, wox, woy, woz = _P(wi, wo, i)
+            hx, hy, hz, cosd[j] = _H(wix, wiy, wiz, wox, woy, woz)
             g = _G(wix, wiy, wiz, wox, woy, woz, hx, hy, hz, 0.0, 0.0)
             spec[j] = k[0] * g * _S(hx, hy, hz, k[1]) / (wiz * woz)
         for c in range(nc):
@@ -378,7 +369,9 @@ def _ts_kernel(fres):
     (generated, like :func:`brdftab.models.fused.microfacet_kernel`, so that an edit of a scalar
     form it inlines compiles anew)."""
     from .._jit import generated_module, source_hash
+    from ..geometry import half_vector_scalar, pair_scalar
 
     shadow = C.get("shadowing", "v-groove")
-    source = _KERNEL.format(fres=fres.name, digest=source_hash(slope_term_scalar, shadow.jit_G, fres.jit_F))
+    digest = source_hash(slope_term_scalar, half_vector_scalar, pair_scalar, shadow.jit_G, fres.jit_F)
+    source = _KERNEL.format(fres=fres.name, digest=digest)
     return generated_module("torrance_sparrow", source).run
