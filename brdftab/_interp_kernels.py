@@ -345,7 +345,7 @@ def _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f):
     return ti, pi_, to, po
 
 
-@kernel
+@kernel(parallel=True)  # numba's parallel loop: measured faster per core here than serial + threads
 def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, valid, vmode, mode, out, flags):
     """Interpolate at every pair into ``out[M, C]``; ``flags[M]`` = 1 where a cell without valid
     corners lies below the horizon (the caller fills it). ``vmode``: every node valid
@@ -724,7 +724,7 @@ def _g2(t, s0, s1, s2, s3, w0, w1, w2, w3, iy):
     return out
 
 
-@kernel
+@kernel(parallel=True)
 def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, p_phi, p_theta, st_phi, st_theta,
              data, cond, marg, spectra, ndf, sigma, lo, hi, t, out):
     """f (``divide``: f·cosθo / cosθo, with ``hold``) or f·cosθo of an RGL file at every pair,
