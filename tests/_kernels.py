@@ -54,3 +54,41 @@ def assert_parity(m, wavelengths=None, seed=0, wi=None, wo=None):
     with numpy_reference():
         one_ref = m.eval(wi[7], wo[:50], wavelengths)
     np.testing.assert_allclose(one, one_ref, rtol=RTOL, atol=0)
+
+
+def asymmetry_numpy(f1, f2, weight=None, floor: float = 1e-9) -> dict:
+    """The numpy form of :func:`brdftab.checks._pairs.asymmetry` that its compiled passes
+    replaced (the reference of their parity test)."""
+    f1, f2 = np.asarray(f1), np.asarray(f2)
+    if f1.dtype.kind != "f" or f2.dtype.kind != "f":
+        f1, f2 = f1.astype(float), f2.astype(float)
+    if f1.ndim == 1:
+        f1, f2 = f1[:, None], f2[:, None]
+    ok = np.isfinite(f1) & np.isfinite(f2)
+    excluded = 0
+    if not ok.all():
+        rows_ok = ok.all(axis=1)
+        excluded = int((~rows_ok).sum())
+        f1 = np.where(ok, f1, 0.0)
+        f2 = np.where(ok, f2, 0.0)
+    amean = np.abs(f1 + f2)
+    amean *= 0.5
+    diff = np.abs(f1 - f2)
+    top = float(amean.max()) if amean.size else 0.0
+    sig = amean > max(floor * top, np.finfo(float).tiny)
+    n_sig = int(sig.sum())
+    out = {"compared": int(f1.shape[0]) - excluded, "excluded": excluded, "max_relative": 0.0,
+           "rms_relative": 0.0, "worst": None, "weighted": None}
+    if n_sig:
+        rel = np.divide(diff, amean, out=np.zeros(diff.shape, diff.dtype), where=sig)
+        i = int(np.argmax(rel))
+        out["max_relative"] = float(rel.flat[i])
+        out["worst"] = i // rel.shape[1] if rel.flat[i] > 0 else None
+        out["rms_relative"] = float(np.sqrt(np.einsum("ij,ij->", rel, rel, dtype=float) / n_sig))
+    if weight is not None:
+        w = np.asarray(weight, float)
+        den = w @ amean.astype(float, copy=False) if amean.size else np.zeros(0)
+        num = w @ diff.astype(float, copy=False) if diff.size else np.zeros(0)
+        ratio = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+        out["weighted"] = float(ratio.max()) if ratio.size else 0.0
+    return out
