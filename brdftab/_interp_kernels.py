@@ -105,6 +105,16 @@ def _load(wi, wo, i, check):
     return ix, iy, iz, ox, oy, oz, 0
 
 
+@device
+def _settle(out, i, nc, st):
+    """Row ``i`` of a pair that is not evaluated (status ``st`` of :func:`_load`, not 0): NaN or 0
+    in every channel; returns the (wi, wo) zero-vector counts it adds."""
+    v = np.nan if st == 1 else 0.0
+    for c in range(nc):
+        out[i, c] = v
+    return (1 if st == 3 else 0), (1 if st == 4 else 0)
+
+
 #: Rows copied at once when directions arrive as views that are not C-contiguous (a direction
 #: broadcast against many): the kernels compile for one array layout, and the copies stay small.
 CHUNK = 1 << 16
@@ -378,13 +388,9 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
             flags[i] = 0
             ix, iy, iz, ox, oy, oz, st = _load(wi, wo, i, check)
             if st != 0:
-                v = np.nan if st == 1 else 0.0
-                for c in range(nc):
-                    out[i, c] = v
-                if st == 3:
-                    zi += 1
-                elif st == 4:
-                    zo += 1
+                di, do = _settle(out, i, nc, st)
+                zi += di
+                zo += do
                 continue
             x[0], x[1], x[2], x[3] = _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f)
             outside = False
@@ -745,13 +751,9 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
         for i in range(b * BLOCK, min(m, (b + 1) * BLOCK)):
             ix, iy, iz, ox, oy, oz, st = _load(wi, wo, i, check)
             if st != 0:
-                v = np.nan if st == 1 else 0.0
-                for c in range(nc):
-                    out[i, c] = v
-                if st == 3:
-                    zi += 1
-                elif st == 4:
-                    zo += 1
+                di, do = _settle(out, i, nc, st)
+                zi += di
+                zo += do
                 continue
             if hold and oz < c0:
                 r = math.hypot(ox, oy)
