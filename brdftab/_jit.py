@@ -28,6 +28,7 @@ import inspect
 import os
 import sys
 import tempfile
+import threading
 from pathlib import Path
 
 __all__ = ["kernel", "device", "prange", "cache_dir", "generated_module", "threads", "parallel_rows", "source_hash",
@@ -69,7 +70,23 @@ class _Lazy:
                     g[name] = numba.prange
         return self._compiled
 
+    def serial(self):
+        """A numba-parallel kernel compiled as a plain loop (for calls off the main thread)."""
+        if getattr(self, "_serial", None) is None:
+            import types
+
+            f = self.py_func  # a twin under its own name: numba's cache keys entries by name, not flags
+            twin = types.FunctionType(f.__code__, f.__globals__, f.__name__ + "_serial", f.__defaults__, f.__closure__)
+            twin.__qualname__ = f.__qualname__ + "_serial"
+            twin.__module__ = f.__module__
+            self._serial = _Lazy(twin, dict(self.options, parallel=False), False).compiled()
+        return self._serial
+
     def __call__(self, *args):
+        if self.options.get("parallel") and threading.current_thread() is not threading.main_thread():
+            # numba's default threading layer (workqueue) ends the process when two threads
+            # launch parallel loops: off the main thread (a thread pool, dask) the plain loop runs
+            return self.serial()(*args)
         return self.compiled()(*args)
 
 

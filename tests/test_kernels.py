@@ -510,3 +510,24 @@ def test_compiled_asymmetry_statistics_match_numpy():
                 assert got[key] == ref[key], key
     same = asymmetry(f1, f1, w)
     assert same["max_relative"] == 0 and same["worst"] is None
+
+
+def test_tables_evaluate_from_threads_under_any_threading_layer(tmp_path):
+    """Table interpolation is a numba parallel loop. Under numba's workqueue threading layer (the
+    one it picks where neither OpenMP nor TBB is available) two threads launching parallel
+    loops end the process; evaluated off the main thread a table takes the plain loop."""
+    code = ("import numpy as np\n"
+            "from concurrent.futures import ThreadPoolExecutor\n"
+            "from brdftab import models, tabulate\n"
+            "from brdftab.grids import RusinkiewiczGrid\n"
+            "t = tabulate(models.create('microfacet', alpha=0.3), RusinkiewiczGrid(20, 20, 40), progress=False)\n"
+            "rng = np.random.default_rng(0)\n"
+            "v = rng.normal(size=(2, 50000, 3)); v[..., 2] = abs(v[..., 2]); v /= np.linalg.norm(v, axis=-1, "
+            "keepdims=True)\n"
+            "ref = t.eval(v[0], v[1])\n"
+            "with ThreadPoolExecutor(4) as pool:\n"
+            "    out = list(pool.map(lambda _: t.eval(v[0], v[1]), range(8)))\n"
+            "print(all(np.array_equal(o, ref) for o in out))\n")
+    env = dict(os.environ, NUMBA_THREADING_LAYER="workqueue", PYTHONPATH=str(ROOT))
+    run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0 and run.stdout.split() == ["True"], run.stdout + run.stderr[-500:]
