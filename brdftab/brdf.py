@@ -189,6 +189,12 @@ class BRDF:
         """Build :meth:`kernel`'s function (None: this BRDF has no compiled form)."""
         return None
 
+    def __getstate__(self):
+        # the compiled evaluations built by kernel() are closures: rebuilt after unpickling
+        state = dict(self.__dict__)
+        state.pop("_kernels", None)
+        return state
+
     def tabulate_into(self, grid, lam, n, values, bar=None) -> bool:
         """Fill ``values[grid.shape + (n,)]`` with f at ``grid``'s nodes by a method that uses
         the grid's structure (e.g. a term that depends on θh alone evaluated once per θh node),

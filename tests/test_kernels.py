@@ -531,3 +531,16 @@ def test_tables_evaluate_from_threads_under_any_threading_layer(tmp_path):
     env = dict(os.environ, NUMBA_THREADING_LAYER="workqueue", PYTHONPATH=str(ROOT))
     run = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0 and run.stdout.split() == ["True"], run.stdout + run.stderr[-500:]
+
+
+def test_a_model_pickles_after_its_kernel_was_built():
+    """Models travel to worker processes by pickle: the compiled evaluation a model caches is
+    left out of its state and rebuilt there."""
+    import pickle
+
+    m = models.create("microfacet", distribution="ggx", alpha=0.3, fresnel="conductor", n=0.2, k=3.0)
+    wi, wo = _pairs_upper(100)
+    f = m.eval(wi, wo)
+    back = pickle.loads(pickle.dumps(m))
+    np.testing.assert_array_equal(back.eval(wi, wo), f)
+    assert back.kernel(None, 1) is not None

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from .._jit import device
 from ..errors import ParameterError
 from ..registry import Registry
 from ..params import Kind, Param, _show, as_float, register_kind, suggest
@@ -333,3 +334,14 @@ def choice_attr(attrs: dict, key: str, choices, default=None) -> str:
         raise ParameterError(key, f"attribute '{key}' = {value!r} is not one of {', '.join(map(repr, choices))}"
                              f"{suggest(value, choices) if isinstance(value, str) else ''}")
     return value
+
+
+@device
+def unravel4(f, n1, n2, n3):
+    """The four C-order indices of flat index ``f`` in a grid of shape (·, n1, n2, n3) (the
+    compiled direction loops' :func:`numpy.unravel_index`)."""
+    i3 = f % n3
+    f //= n3
+    i2 = f % n2
+    f //= n2
+    return f // n1, f % n1, i2, i3

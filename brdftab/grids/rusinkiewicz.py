@@ -19,7 +19,7 @@ from ..geometry import _hd_to_io_trig, hd_to_io_scalar, io_to_hd
 from ..params import Param, unknown
 from .axis import (HALF_PI, MAX_AXIS_NODES, PHI_D_FOLDS, SAMPLE_POSITIONS, TWO_PI, Axis, angle_axis, check_range,
                    count, fold_phi_d, uniform_values)
-from .base import Grid, choice_attr, read_coordinate, register
+from .base import Grid, choice_attr, read_coordinate, register, unravel4
 
 __all__ = ["RusinkiewiczGrid"]
 
@@ -128,13 +128,18 @@ class RusinkiewiczGrid(Grid):
         ih, itd, ipd = idx
         return _hd_to_io_trig(cth[ih], sth[ih], 1.0, 0.0, ctd[itd], std[itd], cpd[ipd], spd[ipd])
 
-    def directions_into(self, start, stop, wi, wo):
+    def node_trig(self):
+        """``(cosθh, sinθh, cosφh, sinφh, cosθd, sinθd, cosφd, sinφd)`` of the axes' nodes (an
+        isotropic grid's φh: the single node 0), the per-axis tables of :meth:`directions`."""
         if self.anisotropic:
             (cth, sth), (cph, sph), (ctd, std), (cpd, spd) = self._trig
         else:
             (cth, sth), (ctd, std), (cpd, spd) = self._trig
             cph, sph = np.ones(1), np.zeros(1)
-        _directions_into(cth, sth, cph, sph, ctd, std, cpd, spd, start, stop, wi, wo)
+        return tuple(np.ascontiguousarray(a, float) for a in (cth, sth, cph, sph, ctd, std, cpd, spd))
+
+    def directions_into(self, start, stop, wi, wo):
+        _directions_into(*self.node_trig(), start, stop, wi, wo)
 
     def node_above_horizon(self) -> np.ndarray:
         """Both directions above the horizon, from the node angles (φh does not change z):
@@ -256,12 +261,6 @@ def _directions_into(cth, sth, cph, sph, ctd, std, cpd, spd, start, stop, wi, wo
     node, from the per-axis cosines and sines."""
     nph, ntd, npd = cph.shape[0], ctd.shape[0], cpd.shape[0]
     for k in range(stop - start):
-        f = start + k
-        ipd = f % npd
-        f //= npd
-        itd = f % ntd
-        f //= ntd
-        iph = f % nph
-        ih = f // nph
+        ih, iph, itd, ipd = unravel4(start + k, nph, ntd, npd)
         wi[k, 0], wi[k, 1], wi[k, 2], wo[k, 0], wo[k, 1], wo[k, 2] = hd_to_io_scalar(
             cth[ih], sth[ih], cph[iph], sph[iph], ctd[itd], std[itd], cpd[ipd], spd[ipd])

@@ -15,7 +15,7 @@ from ..errors import ParameterError
 from ..geometry import sph_to_vec, vec_to_sph
 from ..params import Param
 from .axis import HALF_PI, TWO_PI, Axis, check_range
-from .base import Grid, choice_attr, read_coordinate, register
+from .base import Grid, choice_attr, read_coordinate, register, unravel4
 
 __all__ = ["SphericalGrid"]
 
@@ -175,13 +175,7 @@ def _spherical_into(sti, cti, cpi, spi, sto, cto, cpo, spo, start, stop, wi, wo)
     (θo and φo per (θi, θo) and (φi, φo), relative to the mirror direction or not)."""
     npi, nto, npo = cpi.shape[0], sto.shape[1], cpo.shape[1]
     for k in range(stop - start):
-        f = start + k
-        ipo = f % npo
-        f //= npo
-        ito = f % nto
-        f //= nto
-        ipi = f % npi
-        iti = f // npi
+        iti, ipi, ito, ipo = unravel4(start + k, npi, nto, npo)
         wi[k, 0] = sti[iti] * cpi[ipi]
         wi[k, 1] = sti[iti] * spi[ipi]
         wi[k, 2] = cti[iti]

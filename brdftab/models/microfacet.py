@@ -122,23 +122,18 @@ class Microfacet(Model):
         from .._jit import parallel_rows
         from ..brdf import HORIZON
 
-        if grid.anisotropic:
-            (cth, sth), (cph, sph), (ctd, std), (cpd, spd) = grid._trig
-        else:
-            (cth, sth), (ctd, std), (cpd, spd) = grid._trig
-            cph, sph = np.ones(1), np.zeros(1)
+        trig = grid.node_trig()
+        cth, sth, cph, sph, ctd, std, cpd, spd = trig
         nh, nph, ntd, npd = len(cth), len(cph), len(ctd), len(cpd)
         h = np.stack([sth[:, None] * cph[None, :], sth[:, None] * sph[None, :],
                       np.broadcast_to(cth[:, None], (nh, nph))], axis=-1)
         with np.errstate(all="ignore"):
             d_nodes = np.ascontiguousarray(self.dist.D(h), float)
             f = self.fres.F(ctd, lam, n) if self.fres.depends != "pair" else 1.0
-        f_nodes = np.ascontiguousarray(np.broadcast_to(np.asarray(f, float).reshape(-1, n) if np.ndim(f) else f,
-                                                       (ntd, n)))
+        f_nodes = np.ascontiguousarray(np.broadcast_to(np.asarray(f, float), (ntd, n)))
         pd = self.dist.jit_params()
         pf = np.ascontiguousarray(self.fres.jit_params(lam, n))
         out = values.reshape(nh, nph, ntd, npd, n)
-        trig = [np.ascontiguousarray(a, float) for a in (cth, sth, cph, sph, ctd, std, cpd, spd)]
         rows = max(1, (1 << 18) // max(1, nph * ntd * npd))  # θh rows between progress updates
         for lo in range(0, nh, rows):
             hi = min(nh, lo + rows)
