@@ -98,6 +98,17 @@ class FileFormat:
     #: samples rounded to the storage type); a table it returns is also what is written. None:
     #: the format stores the payload's samples exactly (see :func:`stored`).
     stored: Callable | None = None
+    #: ``stream(template, path, **options) -> writer`` for formats that can be written block by
+    #: block, so a table larger than memory never exists as one array. ``template`` is the
+    #: table's dataset (:func:`brdftab.table.make_table`) whose ``brdf`` variable has the final
+    #: shape and dims but holds no data (a broadcast view: never read it). The writer creates the
+    #: file with every coordinate, auxiliary variable and attribute, then takes
+    #: ``writer.write(key, block)`` (``key`` a tuple of slices over ``brdf``'s dims, ``block`` float
+    #: samples cast to the storage type by the writer) in any order, ``writer.update_attrs(dict)``
+    #: (global attributes set after the pre-export checks, e.g. the check report) and
+    #: ``writer.close()``; it is a context manager. ``writer.chunks`` is the storage chunk shape
+    #: of ``brdf`` (writes aligned to it are fastest). None: the format is written whole.
+    stream: Callable | None = None
 
     @property
     def options(self) -> dict:
