@@ -56,9 +56,25 @@ def _value(text: str):
         return text
 
 
+def _memory(ctx, param, value):
+    """``--memory SIZE``: the run's memory budget, handed down as ``BRDFTAB_MEMORY``."""
+    if value is not None:
+        import os
+
+        from .table import parse_size
+
+        parse_size(value, "--memory")  # a bad size is one line, before any work
+        os.environ["BRDFTAB_MEMORY"] = value
+    return value
+
+
 def check_options(command):
-    """The ``--level CHECK=LEVEL`` and ``--set CHECK.NAME=VALUE`` options of every command that
-    runs checks (``validate``, ``tabulate``, ``convert``); :func:`cli_layer` reads them."""
+    """The ``--level CHECK=LEVEL``, ``--set CHECK.NAME=VALUE`` and ``--memory SIZE`` options of
+    every command that runs checks (``validate``, ``tabulate``, ``convert``); :func:`cli_layer`
+    reads the first two, the third sets the memory budget (:func:`brdftab.table.memory_budget`)."""
+    command = click.option("--memory", metavar="SIZE", callback=_memory, expose_value=False,
+                           help="Memory budget of the run, e.g. 512M or 4G (default 1G, or BRDFTAB_MEMORY): "
+                                "larger tables are written, read and checked block by block.")(command)
     command = click.option("--set", "settings", multiple=True, metavar="CHECK.NAME=VALUE",
                            help="Set a check threshold, e.g. energy.tolerance=0.005 or albedo.expected=0.8 "
                                 "(repeatable; angles as NAME_deg).")(command)

@@ -449,7 +449,8 @@ def _integrate_plain(brdf, theta_i, phi_i, wavelengths, width, nodes, ratio):
     while start < m:
         rules, count = [], 0
         stop = start
-        while stop < m and (count < BATCH or stop == start):
+        batch = getattr(brdf, "eval_batch", None) or BATCH
+        while stop < m and (count < batch or stop == start):
             wo, w = outgoing_rule(theta_i[stop], phi_i[stop], widths[stop], nodes=nodes, ratio=ratio, axes=axes)
             keep = wo[:, 2] > _Z_MIN
             rules.append((wo[keep], w[keep] * wo[keep, 2]))

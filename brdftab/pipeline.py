@@ -10,18 +10,22 @@ explicitly allowed.
 
 from __future__ import annotations
 
+import contextlib
 import time
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from . import formats
+from ._atomic import atomic_path
 from ._locks import check_target, claim, same_file
 from ._progress import check_progress, write_progress
-from ._signals import terminate_as_interrupt
+from ._signals import held_signals, terminate_as_interrupt
 from .brdf import BRDF
 from .checks import Report, guard
 from .errors import BrdftabError
 from .spec import Spec
-from .table import check_checked_memory, tabulate
+from .table import CHECKED_PEAK, CHUNK_OVERHEAD, check_checked_memory, memory_budget, tabulate
 
 __all__ = ["Result", "Planned", "plan", "run"]
 
@@ -116,8 +120,21 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
     allow = spec.validation.get("allow_invalid", False) if allow_invalid is None else allow_invalid
     result = Result()
     # Claim every target before any work: a concurrent run to the same file is refused now.
-    with terminate_as_interrupt(), claim([p.target for p in planned], overwrite, inputs):
+    with terminate_as_interrupt(), claim([p.target for p in planned], overwrite, inputs), \
+            contextlib.ExitStack() as streamed:
         jobs = _jobs(spec, planned, provenance, progress)
+        for job in [j for j in jobs if isinstance(j, _Streamed)]:
+            # written block by block to its temporary and checked there, as stored; renamed
+            # into place when this block ends, after every other output passed its checks too
+            tmps = [streamed.enter_context(atomic_path(m.target, overwrite=overwrite)) for m in job.members]
+            job.write(spec, tmps, progress, _progress_delay(started))
+            for m, tmp in zip(job.members, tmps):
+                with check_progress(m.target.name, progress, _progress_delay(started)):
+                    table, report = job.check(spec, m, tmp, layers, allow)
+                result.written.append(m.target)
+                result.tables.append(table)
+                result.reports.append(report)
+        jobs = [j for j in jobs if not isinstance(j, _Streamed)]
         # validate what is written, as stored, before anything is: a table's metadata gets the report
         reports = {}
         for job in jobs:
@@ -178,6 +195,9 @@ def _jobs(spec, planned, provenance, progress) -> list:
     jobs = []
     for grid, members in _groups(planned):
         needs_table = any(m.format.prepare is None for m in members)
+        if needs_table and _streams(spec, grid, members):
+            jobs.append(_Streamed(grid, members, provenance))
+            continue
         if needs_table:
             source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance)
         else:
@@ -197,6 +217,69 @@ def _jobs(spec, planned, provenance, progress) -> list:
                 checked = payload if isinstance(payload, BRDF) else source
             jobs.append(_Job(m, options, payload, checked, unstorable))
     return jobs
+
+
+class _Streamed:
+    """The outputs of one grid tabulated block by block into their files (formats with a
+    ``stream`` writer), so that no more than a block of the table is in memory: each block is
+    sampled on :meth:`Grid.block` (the same values, bit for bit, as the whole grid gives) and
+    written to every output; the checks then judge each file as stored (read back lazily, within
+    the memory budget) and what they stamp is added to the file before it is renamed into place."""
+
+    def __init__(self, grid, members, provenance):
+        self.grid = grid
+        self.members = members
+        self.provenance = provenance
+        self.writers = []
+
+    def write(self, spec, tmps, progress, delay) -> None:
+        from ._signals import checkpoint
+        from .channels import Layout
+        from .table import _checked_dtype, _progress, _specular_samples, blocks, fill_values, make_table
+
+        model, grid = spec.model, self.grid
+        lam = model.layout.resolve(spec.wavelengths)
+        n = model.layout.n_out(lam)
+        layout = model.layout if lam is None else Layout(None, lam)
+        # the table's dataset with a broadcast zero for its samples: nothing of its size is allocated
+        template = make_table(np.broadcast_to(np.zeros((), np.float64), grid.shape + (n,)), grid, layout,
+                              brdf=model, provenance=self.provenance, specular=_specular_samples(model, lam))
+        with contextlib.ExitStack() as stack:
+            for m, tmp in zip(self.members, tmps):
+                if "dtype" in m.options:
+                    _checked_dtype(m.options["dtype"])
+                self.writers.append(stack.enter_context(m.format.stream(template.ds, tmp, **m.options)))
+            # one block in float64 (its casts and the evaluation's temporaries come on top): a
+            # sixteenth of the budget
+            items = max(1, memory_budget() // (16 * 8 * n))
+            bar = _progress(grid.size, progress)
+            if bar is not None:
+                bar.delay = delay
+            try:
+                with held_signals(writing=", ".join(m.target.name for m in self.members)):
+                    for key in blocks(grid.shape, items, align=self.writers[0].chunks[:-1]):
+                        sub = grid.block(key)
+                        values = np.empty(sub.shape + (n,))
+                        fill_values(model, sub, lam, values, bar=bar)
+                        for w in self.writers:
+                            w.write(key + (slice(None),), values)
+                        checkpoint()  # Ctrl-C / SIGTERM act between blocks
+            finally:
+                if bar is not None:
+                    bar.close()
+
+    def check(self, spec, m, tmp, layers, allow):
+        """Judge the file ``tmp`` of output ``m`` as stored and add the report to it; returns the
+        table (read lazily from ``tmp``) and the report."""
+        from .checks import guard
+
+        table = m.format.read(tmp)
+        report = guard(table, layers, allow_invalid=allow, what=str(m.target), reference=spec.model,
+                       wavelengths=spec.wavelengths, subject=f"{spec.path.name} on {self.grid.describe()}")
+        stamped = table.ds.drop_vars("brdf")
+        table.close()
+        self.writers[self.members.index(m)].update(stamped)
+        return table, report
 
 
 def _subject(spec, job) -> str:
@@ -222,13 +305,46 @@ def _judge_sampling(spec: Spec, jobs) -> None:
                                 "finer format options, or pass --allow-invalid to write it anyway)")
 
 
+def _n_channels(spec: Spec) -> int:
+    layout = spec.model.layout
+    return layout.n_out(layout.resolve(spec.wavelengths))
+
+
+def _in_memory_bytes(grid, n: int) -> float:
+    """Peak memory of tabulating ``grid`` x ``n`` channels in memory and checking it."""
+    return float(grid.size) * n * 8 * CHECKED_PEAK + CHUNK_OVERHEAD
+
+
+def _streams(spec: Spec, grid, members) -> bool:
+    """True when the outputs of ``grid`` are tabulated block by block into their files: every
+    one can be written so (``FileFormat.stream``) and the in-memory run would exceed the memory
+    budget (:func:`brdftab.table.memory_budget`)."""
+    if grid is None or not all(m.format.stream is not None and m.format.prepare is None for m in members):
+        return False
+    return _in_memory_bytes(grid, _n_channels(spec)) > memory_budget()
+
+
 def _check_memory(spec: Spec, planned) -> None:
     """Refuse up front a run whose tables and checks would not fit in memory (not after the
-    tabulation, when the checks run out of it)."""
-    layout = spec.model.layout
-    n = layout.n_out(layout.resolve(spec.wavelengths))
+    tabulation, when the checks run out of it); outputs streamed to their files are bounded by
+    the memory budget instead, whatever their size."""
+    n = _n_channels(spec)
+    budget = memory_budget()
+    for grid, members in _groups(planned):
+        if grid is None or _streams(spec, grid, members):  # (a format sampling the model itself on a
+            continue                                       # grid it names, like MERL's, holds it whole)
+        need = _in_memory_bytes(grid, n)
+        if need > budget:
+            whole = [m.target.name for m in members if m.format.stream is None]
+            raise BrdftabError(
+                f"{spec.path.name}: tabulating and checking {grid.describe()} x {n} channels needs about "
+                f"{need / 2**30:.3g} GiB of memory, more than the budget of {budget / 2**30:.3g} GiB, and "
+                f"{', '.join(whole)} {'is' if len(whole) == 1 else 'are'} written whole (its format cannot be "
+                "written block by block); write a netCDF (.nc) or zarr (.zarr) table, which is streamed within the "
+                "budget, use a coarser grid, or raise the budget (--memory, BRDFTAB_MEMORY)")
     tables = [(grid, n) for grid, members in _groups(planned)
-              if grid is not None and any(m.format.prepare is None for m in members)]
+              if grid is not None and any(m.format.prepare is None for m in members)
+              and not _streams(spec, grid, members)]
     where = ", ".join(g.describe() for g, _ in tables)
     check_checked_memory(tables, f"{spec.path.name}: tabulating and checking {where} x {n} channels")
 
@@ -261,6 +377,21 @@ def validate(spec: Spec, checks: dict | None = None, progress: bool | None = Non
     planned = plan(spec)
     _check_memory(spec, planned)
     for job in _jobs(spec, planned, provenance, progress):
+        if isinstance(job, _Streamed):
+            # judged as run() judges it: written block by block to a scratch file, read back
+            import tempfile
+
+            for m in job.members:
+                with tempfile.TemporaryDirectory(prefix="brdftab-validate-") as folder:
+                    scratch = Planned(m.target.parent / folder / m.target.name, m.format, m.options, m.grid)
+                    one = _Streamed(job.grid, [scratch], provenance)
+                    one.write(spec, [scratch.target], progress, 0.0)
+                    table = m.format.read(scratch.target)
+                    reports[id(scratch)] = guard(table, [config, checks or {}], allow_invalid=True,
+                                                 reference=spec.model, wavelengths=spec.wavelengths,
+                                                 subject=f"{spec.path} ({job.grid.describe()})")
+                    table.close()
+            continue
         if job.key not in reports:
             grid = getattr(job.checked, "grid", None) if job.checked is not None else job.planned.grid
             where = grid.describe() if grid is not None else "its own grid"

@@ -57,6 +57,7 @@ from __future__ import annotations
 import datetime as _dt
 import itertools
 import json
+import math
 import os
 import warnings
 
@@ -71,7 +72,7 @@ from .channels import Layout
 from .errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
 from .grids import Grid, check_grid, grid_from_dataset
 
-__all__ = ["Table", "tabulate", "make_table", "check_memory", "check_checked_memory", "OUTSIDE_MODES", "DEFAULT_CHUNK", "DIRECTION_CONVENTION",
+__all__ = ["Table", "tabulate", "make_table", "fill_values", "blocks", "memory_budget", "parse_size", "check_memory", "check_checked_memory", "OUTSIDE_MODES", "DEFAULT_CHUNK", "DIRECTION_CONVENTION",
            "PHI_CONVENTION", "SPECULAR_VAR", "SPECULAR_DIM", "SPECULAR_THETA_I", "carries_specular_delta",
            "warn_specular_dropped", "set_albedo_curve", "ALBEDO_VAR", "ALBEDO_DIM", "ALBEDO_WHITE_SKY",
            "LABEL_SUFFIX"]
@@ -150,8 +151,17 @@ class Table(BRDF):
         self.outside = outside
         self._warned = False
         self._specular = None
+        #: Callables that release the file this table reads lazily (:meth:`close`).
+        self.closers = []
         if SPECULAR_VAR in ds.data_vars:
             self._check_specular(ds, chan_dim)
+
+    def close(self) -> None:
+        """Release the file a table read lazily holds open (its samples are no longer readable
+        unless they were loaded)."""
+        for close in self.closers:
+            close()
+        self.ds.close()
 
     def _check_specular(self, ds, chan_dim):
         var = ds[SPECULAR_VAR]
@@ -260,15 +270,56 @@ class Table(BRDF):
             self._missing = _missing_mask(self.values, self._var.attrs)
         return self._missing
 
+    def node_values(self, flat) -> np.ndarray:
+        """The samples ``[M, C]`` (float64) of the nodes at flat indices ``flat`` into the grid,
+        NaN where declared missing; read block by block when the table is not loaded."""
+        flat = np.asarray(flat, np.intp)
+        c = self.shape[-1]
+        out = np.empty((flat.size, c))
+        if self._values is not None:
+            out[:] = self._values.reshape(-1, c)[flat]
+            miss = self.missing
+            if miss is not None:
+                out[miss.reshape(-1, c)[flat]] = np.nan
+            return out
+        lead = flat // math.prod(self.shape[1:-1])  # index along the first axis
+        for key, block in self.iter_blocks():
+            a, b = key[0].start, key[0].stop
+            if len(key) > 1:  # blocks within one node of the first axis: read the nodes alone
+                break
+            rows = np.flatnonzero((lead >= a) & (lead < b))
+            if rows.size:
+                v = block.reshape(-1, c)[flat[rows] - a * math.prod(self.shape[1:-1])]
+                miss = _missing_mask(v, self._var.attrs)
+                out[rows] = np.where(miss, np.nan, v) if miss is not None else v
+        else:
+            return out
+        for r, node in enumerate(flat):
+            v = self._read(self._var[np.unravel_index(int(node), self.shape[:-1])]).reshape(1, c)
+            miss = _missing_mask(v, self._var.attrs)
+            out[r] = np.where(miss, np.nan, v) if miss is not None else v
+        return out
+
+    @property
+    def shape(self) -> tuple:
+        """Shape of the stored samples: ``grid.shape + (n_channels,)``."""
+        return tuple(self._var.shape)
+
     def iter_chunks(self, max_bytes: int = 64 << 20):
         """Yield the samples in slabs along the first axis without loading them all."""
+        for _, chunk in self.iter_blocks(max_bytes):
+            yield chunk
+
+    def iter_blocks(self, max_bytes: int = 64 << 20):
+        """Yield ``(key, samples[key])``: the samples in blocks of at most ``max_bytes`` (whole
+        slabs of the first axis when they fit, see :func:`blocks`), read from disk one at a time
+        unless the table is loaded; ``key`` is a tuple of slices over the leading axes."""
         if self._values is not None:
-            yield self._values
+            yield (), self._values
             return
-        n0 = self._var.shape[0]
-        per = max(1, int(max_bytes // max(1, self.nbytes // max(1, n0))))
-        for i in range(0, n0, per):
-            yield self._read(self._var[i:i + per])
+        item = self._var.dtype.itemsize
+        for key in blocks(self.shape, max(1, int(max_bytes // item))):
+            yield key, self._read(self._var[key])
 
     #: The rule of :meth:`albedo_rule` covers the table's domain: the albedo integrals report
     #: its projected solid angle as their coverage (see :mod:`brdftab.integrate`).
@@ -361,8 +412,12 @@ class Table(BRDF):
     def describe(self) -> str:
         return f"table of {self.name} on {self.grid.describe()}"
 
-    def _eval_slab(self, wi, wo, i0):
-        return _slab_eval(self, wi, wo, i0)
+    def _out_of_core(self) -> "OutOfCore":
+        cached = getattr(self, "_ooc", None)
+        if cached is None:
+            cached = self._ooc = OutOfCore(self, memory_budget())
+            self.closers.append(cached.close)
+        return cached
 
     def _interp_data(self):
         """``(values, valid)`` used for interpolation (see :func:`_horizon_ghosts`); cached."""
@@ -395,9 +450,22 @@ class Table(BRDF):
             cached = self._plan = (TablePlan(grid, values, valid, self.isotropic), fill)
         return cached
 
+    @property
+    def eval_batch(self) -> int | None:
+        """Pairs an integration should evaluate per call (None: its own default): a table read
+        from scratch disk (:meth:`_slab_mode`) passes over it once per call, so it takes as many
+        pairs at once as a quarter of the memory budget holds (about 200 bytes per pair with the
+        integration's and the interpolation's temporaries)."""
+        return max(1 << 18, memory_budget() // (4 * 200)) if self._slab_mode() else None
+
     def _slab_mode(self) -> bool:
-        """A table on disk too large to load is evaluated slab by slab (numpy, :func:`_slab_eval`)."""
-        return self._values is None and self.nbytes > SLAB_EVAL_BYTES and self.grid.axes[0].period is None
+        """A table on disk whose interpolation data (:meth:`_interp_data`: the values with
+        horizon ghosts in float64, the valid mask, and the compiled evaluation's packed copy)
+        would take more than half the memory budget is evaluated window by window from scratch
+        disk (numpy, :class:`OutOfCore`)."""
+        if self._values is not None or self.grid.axes[0].period is not None:
+            return False
+        return self.nbytes + self.grid.size * self.shape[-1] * (8 * 2 + 1) > memory_budget() // 2
 
     def eval(self, wi, wo, wavelengths=None, *, assume_unit: bool = False) -> np.ndarray:
         """f(wi, wo) by multilinear interpolation (see :meth:`BRDF.eval` and the module
@@ -466,7 +534,7 @@ class Table(BRDF):
         path of a table evaluated slab by slab from disk)."""
         idx, outside = self.grid.locate(wi, wo, isotropic=self.isotropic)
         if self._slab_mode():
-            out = self._eval_slab(wi, wo, idx[0])
+            out = self._out_of_core().interpolate(idx)
         else:
             values, valid = self._interp_data()
             fill = _nearest_fill(values, lambda: _data_nodes(self.grid, values, valid), self.grid.axes)
@@ -489,7 +557,7 @@ class Table(BRDF):
 GHOST_AXES = ("theta_d", "theta_o", "dtheta_o", "theta_i", "theta_h")
 
 
-def _horizon_ghosts(values, above, grid, missing=None):
+def _horizon_ghosts(values, above, grid, missing=None, axes=None, inplace=False):
     """Values with *ghost* samples at below-horizon nodes next to the horizon, for interpolation.
 
     A below-horizon node stores 0 (f is 0 there by definition), which is not data: linear
@@ -499,12 +567,14 @@ def _horizon_ghosts(values, above, grid, missing=None):
     clamped at 0), and counts as valid for interpolation. The axes are tried in turn (θd,
     then θh for Rusinkiewicz grids; θo, θi for gonio grids), each pass seeing the ghosts of
     the one before. The stored table is unchanged. Only the nodes next to the horizon are
-    computed (about 1 % of a MERL grid). Returns ``(values, valid_nodes)``.
+    computed (about 1 % of a MERL grid). Returns ``(values, valid_nodes)``. ``axes``: the ghost
+    axes to pass along (default :data:`GHOST_AXES`; a subset runs those passes alone).
+    ``inplace``: write the ghosts into ``values`` (float64) instead of a copy.
     """
     vals = None  # copied on the first ghost
     ok = np.array(above, copy=True)
     bad = None if missing is None else missing.any(axis=-1)
-    for name in GHOST_AXES:
+    for name in GHOST_AXES if axes is None else axes:
         if name not in grid.dims:
             continue
         a = grid.dims.index(name)
@@ -521,7 +591,7 @@ def _horizon_ghosts(values, above, grid, missing=None):
             if where[0].size == 0:
                 continue
             if vals is None:
-                vals = np.array(values, dtype=float, copy=True)
+                vals = values if inplace else np.array(values, dtype=float, copy=True)
             g = where[a]
             j1, j2, j3 = g - step, g - 2 * step, g - 3 * step
             at = lambda j: where[:a] + (j,) + where[a + 1:]  # noqa: E731
@@ -632,34 +702,154 @@ def _shell(r, movable):
 _SHELLS: dict = {}
 
 
-#: A table on disk larger than this is evaluated from the slab of its first axis that the
-#: queries need, not loaded whole.
-SLAB_EVAL_BYTES = 256 << 20
-#: Nodes of margin on each side of a slab (the horizon ghosts look three nodes back).
+#: Nodes of margin on each side of a window of the first axis when the interpolation data of a
+#: table too large to load are built (the horizon ghosts look three nodes back).
 SLAB_MARGIN = 4
+#: Rows of the first axis on each side of an evaluation window read with it (the cells of its
+#: queries and the nearest data nodes of cells without any).
+WINDOW_MARGIN = 2
 
 
-def _slab_eval(table, wi, wo, i0):
-    """Evaluate a table that is not loaded from the slab ``[min(i0), max(i0)]`` of its first
-    axis (plus a margin), read from disk; refuses honestly when the slab would not fit."""
-    n = len(table.grid.axes[0])
-    finite = np.isfinite(i0)
-    lo = int(max(0, np.floor(i0[finite].min()) - SLAB_MARGIN)) if finite.any() else 0
-    hi = int(min(n, np.ceil(i0[finite].max()) + SLAB_MARGIN + 1)) if finite.any() else min(n, 1)
-    per = table.nbytes / max(1, n)
-    check_memory(per * (hi - lo) * 3, f"evaluating {hi - lo} of {n} {table.grid.axes[0].name} slabs of the "
-                 f"{table.describe()}", peak=1.0)
-    slab = table._read(table._var[lo:hi])
-    grid = table.grid.sliced(lo, hi)
-    miss = _missing_mask(slab, table._var.attrs)
-    above = grid.node_above_horizon()
-    values, ok = _horizon_ghosts(slab, above, grid, miss) if not above.all() else (slab, above)
-    valid = np.broadcast_to(ok[..., None], values.shape)
-    if miss is not None:
-        valid = valid & ~miss
-    idx, _ = grid.locate(wi, wo, isotropic=table.isotropic)
-    return _multilinear(values, idx, grid.axes, None if valid.all() else valid,
-                        fill=_nearest_fill(values, lambda: _data_nodes(grid, values, valid), grid.axes))
+def scratch_dir() -> str | None:
+    """Folder of scratch files (``BRDFTAB_SCRATCH``, else the system's temporary folder)."""
+    return os.environ.get("BRDFTAB_SCRATCH") or None
+
+
+class OutOfCore:
+    """The interpolation data of a table too large for the memory budget, on scratch disk.
+
+    Built once, window by window of the first axis, as the whole-table interpolation has them
+    (:func:`_horizon_ghosts`): the values with their horizon ghosts (float64), the valid nodes
+    and the declared missing samples, in anonymous temporary files (deleted when closed, or
+    when the process ends however it ends). The ghosts along the other axes come from each
+    window alone; those along the first axis (θh, θi: the last ghost axis) in a second sweep over
+    the scratch with three rows of margin, the rows it changes written back behind it.
+    Evaluation sorts the queries by their cell along the first axis and interpolates them window
+    by window, each window (plus :data:`WINDOW_MARGIN` rows) read back: one pass over the
+    scratch per call, memory bounded by the budget. The result equals the whole-table
+    interpolation except where a cell has no valid corner and its nearest data node lies beyond
+    the window's margin (the nearest node within it is taken)."""
+
+    def __init__(self, table, budget: int):
+        import tempfile
+
+        self.grid = grid = table.grid
+        self.shape = table.shape
+        self.n0 = n0 = self.shape[0]
+        self.nodes = math.prod(self.shape[1:-1])  # nodes per row of the first axis
+        self.row = self.nodes * self.shape[-1]     # samples per row
+        folder = scratch_dir()
+        self.values = tempfile.TemporaryFile(dir=folder)
+        self.ok = tempfile.TemporaryFile(dir=folder)
+        self.missing = None
+        first = grid.dims[0]
+        present = [a for a in GHOST_AXES if a in grid.dims]
+        inner = tuple(a for a in present if a != first)
+        try:
+            # pass 1: read as stored, ghosts along the other axes (row by row independent)
+            per_row = self.row * (table._var.dtype.itemsize + 8 + 1) + self.nodes * 8
+            step = max(1, budget // per_row)
+            for a in range(0, n0, step):
+                b = min(n0, a + step)
+                slab = table._read(table._var[a:b])
+                sub = grid.sliced(a, b)
+                miss = _missing_mask(slab, table._var.attrs)
+                above = sub.node_above_horizon()
+                vals, ok = _horizon_ghosts(slab, above, sub, miss, axes=inner)
+                if miss is not None and self.missing is None:
+                    self.missing = tempfile.TemporaryFile(dir=folder)
+                    self.missing.write(np.zeros(a * self.row, np.bool_).tobytes())
+                if self.missing is not None:
+                    self.missing.write(np.zeros(slab.shape, np.bool_).tobytes() if miss is None
+                                       else np.ascontiguousarray(miss).tobytes())
+                self.values.write(np.ascontiguousarray(vals, np.float64).tobytes())
+                self.ok.write(np.ascontiguousarray(ok, np.bool_).tobytes())
+            if first in present and present[-1] == first and n0 >= 3:
+                self._first_axis_pass(first, budget)
+        except BaseException:
+            self.close()
+            raise
+        self.window = max(1, budget // (self.row * (8 + 1) * 4) - 2 * WINDOW_MARGIN - 1)
+
+    def _first_axis_pass(self, first, budget) -> None:
+        """Ghosts along the first axis, window by window of the scratch with three rows of
+        margin each side, written into the window in place; each window's rows are written back
+        once the next window has the rows before it as they were."""
+        per_row = self.row * 8 + self.nodes * 8  # the window's values, its node masks
+        step = max(1, budget // per_row - 6)
+        kept = None  # (values, ok) as pass 1 left them, of the rows just before the window
+        for a in range(0, self.n0, step):
+            b = min(self.n0, a + step)
+            lo, hi = max(0, a - 3), min(self.n0, b + 3)
+            vals = np.empty((hi - lo,) + self.shape[1:])
+            ok = np.empty((hi - lo,) + self.shape[1:-1], np.bool_)
+            k = 0
+            if kept is not None:
+                k = kept[0].shape[0]
+                vals[:k], ok[:k] = kept
+            for f, out, item in ((self.values, vals, 8), (self.ok, ok, 1)):
+                per = math.prod(out.shape[1:]) * item
+                f.seek((lo + k) * per)
+                f.readinto(memoryview(out[k:].reshape(-1).view(np.uint8)))
+            c = max(0, b - 3) - lo  # the next window's first rows (its margin), as they were
+            kept = (vals[c:b - lo].copy(), ok[c:b - lo].copy())
+            if ok[a - lo:b - lo].all():
+                continue  # nothing below the horizon without a ghost: these rows stay
+            miss = self._missing(lo, hi)
+            _, ok = _horizon_ghosts(vals, ok, self.grid.sliced(lo, hi), miss, axes=(first,), inplace=True)
+            self._write(a, vals[a - lo:b - lo], ok[a - lo:b - lo])
+
+    def _read(self, f, lo, hi, shape, dtype, item):
+        out = np.empty((hi - lo,) + shape, dtype)
+        f.seek(lo * math.prod(shape) * item)
+        f.readinto(memoryview(out.reshape(-1).view(np.uint8)))
+        return out
+
+    def _rows(self, lo, hi):
+        """(values, valid nodes) of rows ``lo:hi`` of the first axis."""
+        return (self._read(self.values, lo, hi, self.shape[1:], np.float64, 8),
+                self._read(self.ok, lo, hi, self.shape[1:-1], np.bool_, 1))
+
+    def _missing(self, lo, hi):
+        return None if self.missing is None else self._read(self.missing, lo, hi, self.shape[1:], np.bool_, 1)
+
+    def _write(self, a, vals, ok) -> None:
+        self.values.seek(a * self.row * 8)
+        self.values.write(np.ascontiguousarray(vals, np.float64).tobytes())
+        self.ok.seek(a * self.nodes)
+        self.ok.write(np.ascontiguousarray(ok, np.bool_).tobytes())
+
+    def interpolate(self, idx) -> np.ndarray:
+        """Values ``[M, C]`` at fractional indices ``idx`` (one array per axis, as
+        :meth:`Grid.locate` gives them), NaN where the first one is not finite."""
+        m = idx[0].shape[0]
+        out = np.full((m, self.shape[-1]), np.nan)
+        cell = np.full(m, -1, np.intp)
+        finite = np.isfinite(idx[0])
+        cell[finite] = np.clip(np.floor(idx[0][finite]), 0, self.n0 - 1).astype(np.intp)
+        order = np.argsort(cell, kind="stable")
+        sorted_cells = cell[order]
+        for a in range(0, self.n0, self.window):
+            b = min(self.n0, a + self.window)
+            sel = order[np.searchsorted(sorted_cells, a):np.searchsorted(sorted_cells, b)]
+            if sel.size == 0:
+                continue
+            lo, hi = max(0, a - WINDOW_MARGIN), min(self.n0, b + 1 + WINDOW_MARGIN)
+            vals, ok = self._rows(lo, hi)
+            valid = np.broadcast_to(ok[..., None], vals.shape)
+            miss = self._missing(lo, hi)
+            if miss is not None:
+                valid = valid & ~miss
+            sub = self.grid.sliced(lo, hi)
+            local = [idx[0][sel] - lo] + [x[sel] for x in idx[1:]]
+            out[sel] = _multilinear(vals, local, sub.axes, None if valid.all() else valid,
+                                    fill=_nearest_fill(vals, lambda: _data_nodes(sub, vals, valid), sub.axes))
+        return out
+
+    def close(self) -> None:
+        for f in (self.values, self.ok, self.missing):
+            if f is not None:
+                f.close()
 
 
 def _data_nodes(grid, values, valid):
@@ -988,6 +1178,20 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
     if lam is not None and np.any(np.diff(lam) <= 0):
         raise ParameterError("wavelengths", "a table's wavelengths must increase strictly")
     n = brdf.layout.n_out(lam)
+    dtype = _checked_dtype(dtype)
+    _check_memory(grid, n, dtype)
+    values = np.empty(grid.shape + (n,), dtype=dtype)
+    bar = _progress(grid.size, progress)
+    try:
+        fill_values(brdf, grid, lam, values, chunk_size, bar)
+    finally:
+        if bar is not None:
+            bar.close()
+    return make_table(values, grid, brdf.layout if lam is None else Layout(None, lam), brdf=brdf,
+                      provenance=provenance, specular=_specular_samples(brdf, lam))
+
+
+def _checked_dtype(dtype):
     requested = dtype
     try:
         dtype = np.dtype(dtype)
@@ -997,27 +1201,50 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
         shown = str(dtype) if dtype is not None else repr(requested)
         raise ParameterError("dtype", f"a table holds floating-point samples: expected 'float32' or 'float64', "
                              f"got {shown}")
-    _check_memory(grid, n, dtype)
-    values = np.empty(grid.shape + (n,), dtype=dtype)
+    return dtype
+
+
+def fill_values(brdf: BRDF, grid: Grid, lam, values, chunk_size: int = DEFAULT_CHUNK, bar=None) -> None:
+    """Sample ``brdf`` at every node of ``grid`` into ``values[grid.shape + (n,)]`` (float64 or
+    float32): the model's structured tabulation when it has one, else its compiled evaluation,
+    else :meth:`BRDF.eval` in chunks of ``chunk_size`` nodes. Every node's value depends on that
+    node alone, so a block of a grid (:meth:`Grid.block`) gets the same bits as the whole."""
+    n = values.shape[-1]
     flat = values.reshape(-1, n)
     size = grid.size
-    bar = _progress(size, progress)
-    try:
-        structured = brdf.tabulate_into(grid, lam, n, values, bar)
-        run = None if structured else brdf.kernel(lam, n)
-        if run is not None:
-            _tabulate_compiled(run, grid, flat, chunk_size, bar)
-        for start in range(0, 0 if (structured or run is not None) else size, chunk_size):
-            stop = min(start + chunk_size, size)
-            wi, wo = grid.directions(start, stop)
-            flat[start:stop] = brdf.eval(wi, wo, lam, assume_unit=True)
-            if bar is not None:
-                bar.update(stop - start)
-    finally:
+    structured = brdf.tabulate_into(grid, lam, n, values, bar)
+    run = None if structured else brdf.kernel(lam, n)
+    if run is not None:
+        _tabulate_compiled(run, grid, flat, chunk_size, bar)
+    for start in range(0, 0 if (structured or run is not None) else size, chunk_size):
+        stop = min(start + chunk_size, size)
+        wi, wo = grid.directions(start, stop)
+        flat[start:stop] = brdf.eval(wi, wo, lam, assume_unit=True)
         if bar is not None:
-            bar.close()
-    return make_table(values, grid, brdf.layout if lam is None else Layout(None, lam), brdf=brdf,
-                      provenance=provenance, specular=_specular_samples(brdf, lam))
+            bar.update(stop - start)
+
+
+def blocks(shape, max_items: int, align=None):
+    """Keys (tuples of slices over the leading axes) that cut an array of ``shape`` into blocks
+    of at most ``max_items`` elements (at least one element of the last axes kept whole):
+    whole slabs of the first axis when they fit, else single nodes of the leading axes and a
+    run of the next. ``align`` (a chunk shape of the same rank) makes the runs whole chunks
+    where it can, so each block writes whole storage chunks."""
+    shape = tuple(int(x) for x in shape)
+    max_items = max(1, int(max_items))
+    for k in range(len(shape)):
+        tail = math.prod(shape[k + 1:])
+        if tail <= max_items or k == len(shape) - 1:
+            break
+    step = max(1, min(shape[k], max_items // max(1, tail)))
+    if align is not None and len(align) == len(shape):
+        c = int(align[k])
+        if 0 < c < step:
+            step -= step % c
+    for lead in np.ndindex(*shape[:k]):
+        head = tuple(slice(i, i + 1) for i in lead)
+        for start in range(0, shape[k], step):
+            yield head + (slice(start, min(start + step, shape[k])),)
 
 
 def _tabulate_compiled(run, grid, flat, chunk_size, bar):
@@ -1156,6 +1383,41 @@ CHUNK_OVERHEAD = 64 << 20
 #: (the reciprocity and bilateral checks pair every sample with its mirror image). ``tabulate``
 #: runs refuse up front what the checks could not finish (:func:`check_checked_memory`).
 CHECKED_PEAK = 9.0
+
+
+#: Memory a run may use for its tables, its checks and their temporaries unless told otherwise
+#: (``--memory`` on the command line, the ``BRDFTAB_MEMORY`` environment variable): a table
+#: whose tabulation and checks would need more is streamed to its file block by block.
+DEFAULT_MEMORY_BUDGET = 1 << 30
+_SIZE_UNITS = {"": 1, "b": 1, "k": 1 << 10, "kb": 1000, "kib": 1 << 10, "m": 1 << 20, "mb": 1000 ** 2,
+               "mib": 1 << 20, "g": 1 << 30, "gb": 1000 ** 3, "gib": 1 << 30, "t": 1 << 40, "tb": 1000 ** 4,
+               "tib": 1 << 40}
+
+
+def parse_size(text, what: str = "memory") -> int:
+    """Bytes of a size written ``"1G"``, ``"512MiB"``, ``"2.5GB"`` or a plain number of bytes
+    (``K``/``M``/``G``/``T`` alone are binary, ``KB``... decimal, ``KiB``... binary).
+
+    >>> parse_size("1G"), parse_size("500MB"), parse_size("4096")
+    (1073741824, 500000000, 4096)
+    """
+    import re
+
+    m = re.fullmatch(r"\s*([0-9]*\.?[0-9]+(?:[eE][+-]?[0-9]+)?)\s*([A-Za-z]*)\s*", str(text))
+    unit = m.group(2).lower() if m else None
+    if m is None or unit not in _SIZE_UNITS:
+        raise ParameterError(what, f"expected a size such as 512M, 2G or 1.5GB, got {str(text)!r}")
+    size = float(m.group(1)) * _SIZE_UNITS[unit]
+    if not (size >= 1 << 20):
+        raise ParameterError(what, f"{str(text)!r} is less than 1 MiB; a run needs more than that")
+    return int(size)
+
+
+def memory_budget() -> int:
+    """Bytes a run may use for its tables and checks: ``BRDFTAB_MEMORY`` when set (a size, see
+    :func:`parse_size`), else :data:`DEFAULT_MEMORY_BUDGET`."""
+    text = os.environ.get("BRDFTAB_MEMORY", "").strip()
+    return parse_size(text, "BRDFTAB_MEMORY") if text else DEFAULT_MEMORY_BUDGET
 
 
 def available_memory() -> int | None:

@@ -225,8 +225,11 @@ class Context:
 
     @property
     def is_table(self) -> bool:
-        """The BRDF holds samples (``values``) on some ``grid``."""
-        return hasattr(self.brdf, "values") and hasattr(self.brdf, "grid")
+        """The BRDF holds samples (``values``) on some ``grid`` (asked without reading them: a
+        table's ``values`` property loads its samples)."""
+        b = self.brdf
+        has_values = hasattr(type(b), "values") or "values" in getattr(b, "__dict__", {})
+        return has_values and hasattr(b, "grid")
 
     @property
     def on_grid(self) -> bool:

@@ -84,40 +84,64 @@ def asymmetry(f1, f2, weight=None, floor: float = 1e-9) -> dict:
     Two compiled passes over the pairs, on every core (values read as stored and taken in
     float64; the first largest difference is the worst).
     """
+    return asymmetry_blocks(lambda: iter([(f1, f2, weight, None)]), floor, weighted=weight is not None)
+
+
+def asymmetry_blocks(rows, floor: float = 1e-9, weighted: bool = True) -> dict:
+    """:func:`asymmetry` over pairs given in blocks, for pairs that do not fit in memory at once
+    (a table read block by block): ``rows()`` returns an iterator of ``(f1, f2, weight, locate)``
+    blocks and is called twice (the largest mean first, then the statistics). ``worst`` is
+    ``locate(row in its block)`` (the row counted over all blocks when ``locate`` is None)."""
     from .._jit import parallel_rows
 
-    f1, f2 = np.asarray(f1), np.asarray(f2)
-    if f1.dtype.kind != "f" or f2.dtype.kind != "f":
-        f1, f2 = f1.astype(float), f2.astype(float)
-    if f1.ndim == 1:
-        f1, f2 = f1[:, None], f2[:, None]
-    f1, f2 = np.ascontiguousarray(f1), np.ascontiguousarray(f2)
-    if f1.dtype != f2.dtype:
-        f1, f2 = f1.astype(float), f2.astype(float)
-    n, nc = f1.shape
-    parts = parallel_rows(lambda lo, hi: _top_pass(f1[lo:hi], f2[lo:hi]), n)
-    top = max((p[0] for p in parts), default=0.0)
-    excluded = sum(int(p[1]) for p in parts)
+    def prepared():
+        for f1, f2, w, locate in rows():
+            f1, f2 = np.asarray(f1), np.asarray(f2)
+            if f1.dtype.kind != "f" or f2.dtype.kind != "f":
+                f1, f2 = f1.astype(float), f2.astype(float)
+            if f1.ndim == 1:
+                f1, f2 = f1[:, None], f2[:, None]
+            f1, f2 = np.ascontiguousarray(f1), np.ascontiguousarray(f2)
+            if f1.dtype != f2.dtype:
+                f1, f2 = f1.astype(float), f2.astype(float)
+            yield f1, f2, (np.zeros(0) if w is None else np.ascontiguousarray(w, float)), locate
+
+    top, excluded, n = 0.0, 0, 0
+    for f1, f2, _, _ in prepared():
+        parts = parallel_rows(lambda lo, hi: _top_pass(f1[lo:hi], f2[lo:hi]), f1.shape[0])
+        top = max([top] + [p[0] for p in parts])
+        excluded += sum(int(p[1]) for p in parts)
+        n += f1.shape[0]
     thresh = max(floor * top, np.finfo(float).tiny)
-    w = np.zeros(0) if weight is None else np.ascontiguousarray(weight, float)
+    n_sig, sumsq, best, worst, num, den, offset = 0, 0.0, 0.0, None, None, None, 0
+    for f1, f2, w, locate in prepared():
+        nc = f1.shape[1]
 
-    def stats(lo, hi):
-        num, den = np.zeros(nc), np.zeros(nc)
-        r = _stats_pass(f1[lo:hi], f2[lo:hi], thresh, w[lo:hi] if w.size else w, num, den)
-        return r + (num, den, lo)
+        def stats(lo, hi):
+            a, b = np.zeros(nc), np.zeros(nc)
+            r = _stats_pass(f1[lo:hi], f2[lo:hi], thresh, w[lo:hi] if w.size else w, a, b)
+            return r + (a, b, lo)
 
-    parts = parallel_rows(stats, n)
-    n_sig = sum(int(p[0]) for p in parts)
+        parts = parallel_rows(stats, f1.shape[0])
+        n_sig += sum(int(p[0]) for p in parts)
+        sumsq += sum(p[3] for p in parts)
+        for p in parts:  # ranges in order: the first largest stays
+            if p[1] > best:
+                best = float(p[1])
+                row = int(p[6] + p[2])
+                worst = locate(row) if locate is not None else offset + row
+        num = sum((p[4] for p in parts), np.zeros(nc) if num is None else num)
+        den = sum((p[5] for p in parts), np.zeros(nc) if den is None else den)
+        offset += f1.shape[0]
     out = {"compared": n - excluded, "excluded": excluded, "max_relative": 0.0, "rms_relative": 0.0,
            "worst": None, "weighted": None}
     if n_sig:
-        best = max(parts, key=lambda p: p[1])  # the first range holding the largest (ranges in order)
-        out["max_relative"] = float(best[1])
-        out["worst"] = int(best[6] + best[2]) if best[1] > 0 else None
-        out["rms_relative"] = float(np.sqrt(sum(p[3] for p in parts) / n_sig))
-    if weight is not None:
-        num = sum(p[4] for p in parts) if parts else np.zeros(nc)
-        den = sum(p[5] for p in parts) if parts else np.zeros(nc)
+        out["max_relative"] = best
+        out["worst"] = worst
+        out["rms_relative"] = float(np.sqrt(sumsq / n_sig))
+    if weighted:
+        num = np.zeros(1) if num is None else num
+        den = np.zeros(1) if den is None else den
         ratio = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
         out["weighted"] = float(ratio.max()) if ratio.size else 0.0
     return out

@@ -4,6 +4,8 @@ near the horizon."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 __all__ = ["missing_mask", "data_values", "node_where", "match_axis", "rusinkiewicz_node_weights", "gonio_node_weights",
@@ -30,7 +32,7 @@ def missing_mask(table) -> np.ndarray:
 
 def node_where(table, flat_index: int, labels=None) -> dict:
     """Coordinates of a sample (flat index into ``table.values``) in degrees, and its channel."""
-    shape = np.asarray(table.values).shape
+    shape = table.shape if hasattr(table, "shape") else np.asarray(table.values).shape
     idx = np.unravel_index(int(flat_index), shape)
     out = {}
     axes = {getattr(a, "name", ""): a for a in getattr(table.grid, "axes", ())}
@@ -145,21 +147,68 @@ def data_values(ctx) -> np.ndarray:
     return ctx.memo("data_values", compute)
 
 
-def phi_d_pairs(grid, v, partner):
+def over_budget(table) -> bool:
+    """True when the checks' copies of a table's samples (values and partners in float64) would
+    not fit the memory budget: the table is not loaded and its node pairs are compared block by
+    block (:func:`data_blocks`)."""
+    from ..table import memory_budget
+
+    if getattr(table, "_values", None) is not None or not hasattr(table, "iter_blocks"):
+        return False
+    return table.grid.size * table.shape[-1] * 8 * 4 > memory_budget()
+
+
+class NotBlockable(Exception):
+    """A comparison of node pairs that needs the whole table at once, which is over budget."""
+
+
+def data_blocks(ctx):
+    """``(key, samples)`` of the table in slabs of its first axis (``key``: a one-slice tuple),
+    declared missing samples NaN: the whole table as one block (:func:`data_values`) unless it
+    is over the memory budget (:func:`over_budget`), then one slab after another read from disk.
+    Raises :class:`NotBlockable` when a single node of the first axis is over the budget."""
+    from ..table import _missing_mask, memory_budget
+
+    t = ctx.brdf
+    if not over_budget(t):
+        yield (slice(0, t.grid.shape[0]),), data_values(ctx)
+        return
+    for key, v in t.iter_blocks(max(1 << 20, memory_budget() // 16)):
+        if len(key) != 1:
+            raise NotBlockable(f"one {t.grid.dims[0]} slab of the table is over the memory budget")
+        miss = _missing_mask(v, t._var.attrs)
+        v = v if miss is None else np.where(miss, np.nan, v.astype(np.result_type(v.dtype, np.float32)))
+        yield key, v
+
+
+def flat_rows(grid, key):
+    """``locate(row)``: the flat node index of row ``row`` of a block ``key`` (whole slabs of
+    the first axis) of a table's samples reshaped ``[nodes, C]``."""
+    start = (key[0].start or 0) * math.prod(grid.shape[1:])
+    return lambda row: start + int(row)
+
+
+def phi_d_pairs(grid, v, partner, key=None):
     """Rows ``(f1[M, C], f2[M, C], w[M], flat)`` comparing every node with its φd partner
     (``partner[j]`` is the partner of φd node j), each unordered pair once; ``flat`` maps a
-    row to the flat node index of its first node."""
+    row to the flat node index of its first node. ``v`` may be a block ``key`` (a slab of the
+    first axis, :func:`data_blocks`) of the table."""
     k = grid.dims.index("phi_d")
     n = len(partner)
     sel = np.flatnonzero(np.arange(n) <= partner)
     f1 = np.take(v, sel, axis=k)
     f2 = np.take(v, partner[sel], axis=k)
     w = rusinkiewicz_node_weights(grid, sel)
+    start = 0
+    if key is not None:
+        w = w[key]
+        start = key[0].start or 0
     shape = f1.shape[:-1]
     c = v.shape[-1]
     def flat(row):
         idx = list(np.unravel_index(row, shape))
         idx[k] = sel[idx[k]]
+        idx[0] = idx[0] + start
         return int(np.ravel_multi_index(idx, grid.shape))
     return f1.reshape(-1, c), f2.reshape(-1, c), np.ascontiguousarray(w).reshape(-1), flat
 

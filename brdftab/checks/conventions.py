@@ -52,8 +52,11 @@ def _node_errors(ctx, model, seed):
     rng = np.random.default_rng(seed)
     flat = rng.integers(0, grid.size, min(NODES, grid.size))
     idx = np.unravel_index(flat, grid.shape)
-    values = np.asarray(t.values, float).reshape(grid.size, -1)[flat]
-    values = np.where(missing_mask(t).reshape(grid.size, -1)[flat], np.nan, values)
+    if hasattr(t, "node_values"):
+        values = t.node_values(flat)
+    else:
+        values = np.asarray(t.values, float).reshape(grid.size, -1)[flat]
+        values = np.where(missing_mask(t).reshape(grid.size, -1)[flat], np.nan, values)
     lam = ctx.wavelengths if ctx.wavelengths is not None else (t.wavelengths if t.spectral else None)
 
     def err(shift):

@@ -115,13 +115,13 @@ def _missing_data(ctx) -> bool:
     """The table holds samples that are not data (declared missing, NaN): they, and not only
     its grid's extent, leave parts of the hemisphere out of the integrals."""
     def compute():
-        from ._tables import missing_mask
+        from .samples import _table_audit
 
         b = ctx.brdf
         if not ctx.is_table or not hasattr(b, "ds"):
             return False
-        v = np.asarray(b.values)
-        return bool(missing_mask(b).any() or np.isnan(v).any())
+        a = _table_audit(ctx)  # (read block by block, shared with the sample checks)
+        return bool(a["missing"] or a["nan"])
     return ctx.memo("energy_missing_data", compute)
 
 

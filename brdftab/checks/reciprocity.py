@@ -56,10 +56,10 @@ import numpy as np
 from ..channels import luminance_weights
 from ..params import Param
 from . import Check, register
-from ._pairs import SCALES, asymmetry, fmt_pair, sample_pairs, where_deg
+from ._pairs import SCALES, asymmetry, asymmetry_blocks, fmt_pair, sample_pairs, where_deg
 from ._reference import reference
-from ._tables import (CorrectedInterpolant, data_values, gonio_node_weights, match_axis, node_where, phi_d_pairs,
-                      reciprocal_surrogate)
+from ._tables import (CorrectedInterpolant, NotBlockable, data_blocks, data_values, gonio_node_weights, match_axis,
+                      node_where, over_budget, phi_d_pairs, reciprocal_surrogate)
 
 __all__ = ["Reciprocity", "covered", "as_data", "measured_theta_max", "interpolated_asymmetry", "RESOLUTION_MARGIN"]
 
@@ -102,21 +102,37 @@ def covered(table, wi, wo) -> np.ndarray:
     return ~np.asarray(outside, bool)
 
 
-def _node_pairs_rusinkiewicz(table, v):
-    """Rows (f, f', w, flat) pairing every node with its φd partner, or None."""
+def node_pairs(ctx):
+    """``rows()`` giving the node pairs of a table block by block — ``(f, f', w, flat)`` for
+    :func:`~brdftab.checks._pairs.asymmetry_blocks` — or None when its nodes have no partners
+    (then the pairs are sampled and interpolated). A Rusinkiewicz table pairs every node with
+    its φd partner within slabs of θh (read one at a time when the table is over the memory
+    budget); a gonio table pairs (θi, φi) with (θo, φo) across the whole table, which must fit
+    the budget (:class:`~brdftab.checks._tables.NotBlockable` otherwise)."""
+    table = ctx.brdf
     grid = table.grid
-    fold = grid.phi_d_fold
-    ax = grid.axes[grid.dims.index("phi_d")]
-    if fold == "none":
-        target = ax.values + np.pi
-    elif fold == "bilateral":
-        target = np.pi - ax.values
-    else:
-        return None
-    j = match_axis(ax, target)
-    if np.any(j < 0):
-        return None
-    return phi_d_pairs(grid, v, j)
+    if grid.parameterization == "rusinkiewicz":
+        fold = grid.phi_d_fold
+        ax = grid.axes[grid.dims.index("phi_d")]
+        if fold == "none":
+            target = ax.values + np.pi
+        elif fold == "bilateral":
+            target = np.pi - ax.values
+        else:
+            return None
+        j = match_axis(ax, target)
+        if np.any(j < 0):
+            return None
+
+        def rows():
+            for key, v in data_blocks(ctx):
+                yield phi_d_pairs(grid, v, j, key)
+        return rows
+    if over_budget(table):
+        raise NotBlockable("a gonio table's (θi, φi) ↔ (θo, φo) node pairs span the whole table, which is over "
+                           "the memory budget")
+    nodes = _node_pairs_spherical(table, data_values(ctx))
+    return None if nodes is None else (lambda: iter([nodes]))
 
 
 def _node_pairs_spherical(table, v):
@@ -182,6 +198,13 @@ class Reciprocity(Check):
     )
 
     def run(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed, measured_weighted, assume):
+        try:
+            return self._judge(ctx, max_relative, weighted, weighted_interpolated, pairs, seed, measured_weighted,
+                               assume)
+        except NotBlockable as exc:
+            return self.skip(f"{exc} (raise the budget with --memory or BRDFTAB_MEMORY to compare them)")
+
+    def _judge(self, ctx, max_relative, weighted, weighted_interpolated, pairs, seed, measured_weighted, assume):
         b = ctx.brdf
         if assume == "declared" and as_data(ctx):
             return self._data(ctx, measured_weighted, pairs, seed)
@@ -201,16 +224,15 @@ class Reciprocity(Check):
         mode = "nodes"
         nodes = None
         if ctx.on_grid and "reciprocity" not in getattr(b.grid, "phi_d_fold", "none"):
-            v = data_values(ctx)
-            nodes = (_node_pairs_rusinkiewicz(b, v) if b.grid.parameterization == "rusinkiewicz"
-                     else _node_pairs_spherical(b, v))
+            nodes = node_pairs(ctx)
         elif ctx.on_grid:
             return self.outcome(True, 0.0, threshold, f"reciprocal by construction (phi_d_fold = "
                                 f"'{b.grid.phi_d_fold}'); {why}, origin {ctx.origin}", mode="fold", weighted=0.0,
                                 max_relative=0.0, rms_relative=0.0, origin=ctx.origin)
         if nodes is not None:
-            f1, f2, w, _ = nodes
-            f1, f2 = f1 @ lum, f2 @ lum
+            def luminance(rows=nodes):
+                for f1, f2, w, flat in rows():
+                    yield f1 @ lum, f2 @ lum, w, flat
             n = None
         else:
             mode = "interpolated" if ctx.is_table else "pairs"
@@ -230,9 +252,9 @@ class Reciprocity(Check):
             s, extra = interpolated_asymmetry(ctx, wi, wo, w, lum)
         else:
             if nodes is None:
-                f1 = ctx.eval(b, wi, wo) @ lum
-                f2 = ctx.eval(b, wo, wi) @ lum
-            s = asymmetry(f1, f2, w)
+                s = asymmetry(ctx.eval(b, wi, wo) @ lum, ctx.eval(b, wo, wi) @ lum, w)
+            else:
+                s = asymmetry_blocks(luminance)
         worst = s.pop("worst")
         at = ""
         if worst is not None and n is not None:
@@ -265,22 +287,19 @@ class Reciprocity(Check):
             if "reciprocity" in fold:
                 return self.outcome(True, 0.0, max_relative, f"reciprocal by construction (phi_d_fold = '{fold}')",
                                     mode="fold", max_relative=0.0, rms_relative=0.0, weighted=0.0)
-            v = data_values(ctx)
-            nodes = (_node_pairs_rusinkiewicz(b, v) if b.grid.parameterization == "rusinkiewicz"
-                     else _node_pairs_spherical(b, v))
+            nodes = node_pairs(ctx)
             if nodes is not None:
                 return self._nodes(ctx, nodes, max_relative, weighted, declared)
         return self._sampled(ctx, max_relative, weighted, weighted_interpolated, pairs, seed, declared)
 
     def _nodes(self, ctx, nodes, max_relative, weighted, declared):
         t = ctx.brdf
-        f1, f2, w, flat = nodes
-        c = f1.shape[-1]
-        s = asymmetry(f1, f2, w)
+        c = t.shape[-1]
+        s = asymmetry_blocks(nodes)
         ok = s["max_relative"] <= max_relative and s["weighted"] <= weighted
         at = ""
         if s["worst"] is not None:
-            where = node_where(t, flat(s["worst"]) * c, ctx.labels())
+            where = node_where(t, s["worst"] * c, ctx.labels())
             where.pop("channel", None)
             at = " at " + ", ".join(f"{k[:-4]} = {x:.4g}°" for k, x in where.items())
             s["where"] = where
@@ -400,6 +419,8 @@ def interpolated_asymmetry(ctx, wi, wo, w, project=None):
     ``weighted_corrected``, ``interpolation_asymmetry`` and ``resolution_limit``.
     """
     t = ctx.brdf
+    if over_budget(t):
+        raise NotBlockable("comparing interpolated pairs needs the whole table, which is over the memory budget")
     interp = ctx.memo("corrected_interpolant", lambda: CorrectedInterpolant(t))
     surrogate = ctx.memo("reciprocal_surrogate", lambda: reciprocal_surrogate(interp))
 

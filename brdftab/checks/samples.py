@@ -34,16 +34,57 @@ MODEL_PAIRS = 8192
 
 
 def _table_audit(ctx):
+    """Counts of NaN, infinite, negative and missing samples, the first :data:`WHERE` flat
+    indices of each finding and the lowest negative sample, read block by block (a table on
+    disk is never loaded whole for it)."""
     def compute():
         t = ctx.brdf
-        v = np.asarray(t.values)
-        miss = missing_mask(t)
-        with np.errstate(invalid="ignore"):
-            if not miss.any():
-                return {"values": v, "missing": miss, "nan": np.isnan(v), "inf": np.isinf(v), "negative": v < 0}
-            return {"values": v, "missing": miss, "nan": np.isnan(v) & ~miss, "inf": np.isinf(v) & ~miss,
-                    "negative": (v < 0) & ~miss}
+        a = {"samples": 0, "nan": 0, "inf": 0, "negative": 0, "missing": 0, "bad": 0, "lowest": 0.0,
+             "lowest_at": None, "first": {"nonfinite": [], "negative": [], "missing": []}}
+        for key, v, miss in _blocks(t):
+            shape = v.shape
+            with np.errstate(invalid="ignore"):
+                nan, inf, neg = np.isnan(v), np.isinf(v), v < 0
+            if miss is not None:
+                nan, inf, neg = nan & ~miss, inf & ~miss, neg & ~miss
+            a["samples"] += v.size
+            a["nan"] += int(nan.sum())
+            a["inf"] += int(inf.sum())
+            count = int(neg.sum())
+            a["negative"] += count
+            a["missing"] += 0 if miss is None else int(miss.sum())
+            a["bad"] += int((nan | inf).sum()) + (0 if miss is None else int(miss.sum()))
+            for name, mask in (("nonfinite", nan | inf), ("negative", neg), ("missing", miss)):
+                got = a["first"][name]
+                if mask is not None and len(got) < WHERE:
+                    got.extend(_flat(t, key, shape, np.flatnonzero(mask.ravel())[:WHERE - len(got)]))
+            if count:
+                j = int(np.argmin(np.where(neg, v, np.inf)))
+                if a["lowest_at"] is None or v.flat[j] < a["lowest"]:
+                    a["lowest"], a["lowest_at"] = float(v.flat[j]), _flat(t, key, shape, [j])[0]
+        return a
     return ctx.memo("audit", compute)
+
+
+def _blocks(t):
+    """``(key, samples, missing mask or None)`` of a table's blocks."""
+    if hasattr(t, "iter_blocks"):
+        from ..table import _missing_mask
+
+        for key, v in t.iter_blocks():
+            yield key, v, _missing_mask(v, t._var.attrs)
+        return
+    v = np.asarray(t.values)
+    miss = missing_mask(t)
+    yield (), v, miss if miss.any() else None
+
+
+def _flat(t, key, shape, rows) -> list:
+    """Flat indices into the whole table of flat indices ``rows`` into its block ``key``."""
+    full = t.shape if hasattr(t, "shape") else np.asarray(t.values).shape
+    start = [k.start or 0 for k in key] + [0] * (len(full) - len(key))
+    return [int(np.ravel_multi_index(tuple(int(i) + o for i, o in zip(np.unravel_index(int(r), shape), start)),
+                                     full)) for r in rows]
 
 
 def _model_audit(ctx):
@@ -54,8 +95,7 @@ def _model_audit(ctx):
     return ctx.memo("model_audit", compute)
 
 
-def _where(ctx, mask):
-    flat = np.flatnonzero(mask.ravel())[:WHERE]
+def _where(ctx, flat):
     labels = ctx.labels()
     return [node_where(ctx.brdf, i, labels) for i in flat]
 
@@ -74,10 +114,10 @@ class Finite(Check):
     def run(self, ctx):
         if ctx.is_table:
             a = _table_audit(ctx)
-            nan, inf = int(a["nan"].sum()), int(a["inf"].sum())
+            nan, inf = a["nan"], a["inf"]
             bad = nan + inf
-            total = a["values"].size
-            where = _where(ctx, a["nan"] | a["inf"])
+            total = a["samples"]
+            where = _where(ctx, a["first"]["nonfinite"])
             at = f"; first at {fmt_where(where[0])}" if where else ""
             stored = getattr(ctx.brdf, "stored_dtype", None)
             if stored and bad:  # finite in float64, not in the file's storage type
@@ -106,15 +146,13 @@ class NonNegative(Check):
     def run(self, ctx):
         if ctx.is_table:
             a = _table_audit(ctx)
-            neg = a["negative"]
-            count = int(neg.sum())
-            total = a["values"].size
-            lowest = float(a["values"][neg].min()) if count else 0.0
-            where = _where(ctx, neg)
+            count = a["negative"]
+            total = a["samples"]
+            lowest = a["lowest"]
+            where = _where(ctx, a["first"]["negative"])
             worst = None
             if count:
-                vals = np.where(neg, a["values"], np.inf)
-                worst = node_where(ctx.brdf, int(np.argmin(vals)), ctx.labels())
+                worst = node_where(ctx.brdf, a["lowest_at"], ctx.labels())
             at = f"; lowest at {fmt_where(worst)}" if worst else ""
             out = self.outcome(count == 0, count, 0, f"{count} of {total} samples are negative (lowest {lowest:.4g} "
                                f"sr-1){at}", negative=count, lowest=lowest, samples=total, where=where,
@@ -151,10 +189,10 @@ class Missing(Check):
 
     def run(self, ctx, max_fraction):
         a = _table_audit(ctx)
-        total = a["values"].size
-        missing = int(a["missing"].sum())
+        total = a["samples"]
+        missing = a["missing"]
         frac = missing / total if total else 0.0
-        where = _where(ctx, a["missing"])
+        where = _where(ctx, a["first"]["missing"])
         at = f"; first at {fmt_where(where[0])}" if where else ""
         return self.outcome(frac <= max_fraction, frac, max_fraction,
                             f"{missing} of {total} samples are missing ({100 * frac:.3g} %, at most "
@@ -174,9 +212,8 @@ class Coverage(Check):
 
     def run(self, ctx, warn_below):
         a = _table_audit(ctx)
-        total = a["values"].size
-        bad = a["missing"] | a["nan"] | a["inf"]
-        valid = total - int(bad.sum())
+        total = a["samples"]
+        valid = total - a["bad"]
         frac = valid / total if total else 0.0
         text = f"{valid} of {total} samples are data ({100 * frac:.4g} %; missing, NaN and infinite ones are not)"
         if valid == 0:

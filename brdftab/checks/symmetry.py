@@ -22,8 +22,8 @@ import numpy as np
 from ..geometry import hd_to_io, io_to_hd, rot_z
 from ..params import Param
 from . import Check, register
-from ._pairs import asymmetry, fmt_pair, sample_pairs, where_deg
-from ._tables import (data_values, gonio_node_weights, match_axis, node_where, phi_d_pairs,
+from ._pairs import asymmetry, asymmetry_blocks, fmt_pair, sample_pairs, where_deg
+from ._tables import (data_blocks, flat_rows, gonio_node_weights, match_axis, node_where, phi_d_pairs,
                       rusinkiewicz_node_weights)
 
 __all__ = ["Isotropy", "Bilateral"]
@@ -40,9 +40,18 @@ def _thresholds(max_rel, weighted):
     )
 
 
-def _rows(v, partner, w):
-    c = v.shape[-1]
-    return v.reshape(-1, c), np.asarray(partner).reshape(-1, c), np.asarray(w).reshape(-1), lambda row: int(row)
+def _rows(ctx, pairs, weights):
+    """Rows of node pairs, block by block (:func:`~brdftab.checks._tables.data_blocks`):
+    ``pairs(v)`` gives the partner of each sample of a block ``v`` (a slab of the first axis),
+    ``weights`` the node weights of the whole grid."""
+    grid = ctx.brdf.grid
+
+    def rows():
+        for key, v in data_blocks(ctx):
+            c = v.shape[-1]
+            yield (v.reshape(-1, c), np.asarray(pairs(v)).reshape(-1, c), np.asarray(weights[key]).reshape(-1),
+                   flat_rows(grid, key))
+    return rows
 
 
 class _Pairwise(Check):
@@ -79,16 +88,16 @@ class _Pairwise(Check):
         return out
 
     def _nodes(self, ctx, rows, max_relative, weighted, passed=None, note=""):
-        f1, f2, w, flat = rows
-        c = f1.shape[-1]
-        s = asymmetry(f1, f2, w)
+        """Judge node pairs given block by block (``rows()``, see :func:`_rows`)."""
+        c = ctx.brdf.shape[-1]
+        s = asymmetry_blocks(rows)
         if not s["compared"]:  # every pair has a missing or non-finite side: nothing was measured
-            return self.skip(f"no node pair has data on both sides (of {f1.shape[0]}): the {self.what} cannot be "
+            return self.skip(f"no node pair has data on both sides (of {s['excluded']}): the {self.what} cannot be "
                              "measured", compared=0)
         worst = s.pop("worst")
         at = ""
         if worst is not None:
-            where = node_where(ctx.brdf, flat(worst) * c, ctx.labels())
+            where = node_where(ctx.brdf, worst * c, ctx.labels())
             where.pop("channel", None)
             s["where"] = where
             at = " at " + ", ".join(f"{k[:-4]} = {x:.4g}°" for k, x in where.items())
@@ -116,12 +125,10 @@ class Isotropy(_Pairwise):
                 if "phi_h" not in grid.dims:
                     return self.outcome(True, 0.0, max_relative, "isotropic by construction (no phi_h axis)",
                                         mode="construction")
-                v = data_values(ctx)
                 k = grid.dims.index("phi_h")
-                mean = np.nanmean(v, axis=k, keepdims=True)
-                w = rusinkiewicz_node_weights(grid)
-                return self._nodes(ctx, _rows(v, np.broadcast_to(mean, v.shape), w), max_relative, weighted, passed,
-                                   note)
+                mean = lambda v: np.broadcast_to(np.nanmean(v, axis=k, keepdims=True), v.shape)  # noqa: E731
+                return self._nodes(ctx, _rows(ctx, mean, rusinkiewicz_node_weights(grid)), max_relative, weighted,
+                                   passed, note)
             a_ti, a_pi, a_to, a_po = grid.axes
             if len(a_pi) == 1:
                 # nothing to compare: a check that measures nothing is skipped, not passed
@@ -129,21 +136,22 @@ class Isotropy(_Pairwise):
                                  "for other φi)" if declared else "one φi node: isotropy cannot be measured")
             if grid.relative_to == "specular":
                 # (θi, φi_b, Δθ, Δφ) rotates onto (θi, φi_0, Δθ, Δφ): compare with the first φi node
-                v = data_values(ctx)
-                partner = np.broadcast_to(v[:, :1], v.shape)
+                def partner(v):
+                    return np.broadcast_to(v[:, :1], v.shape)
             else:
-                v = data_values(ctx)
                 shift = a_pi.values - a_pi.values[0]
                 jd = match_axis(a_po, (a_po.values[None, :] - shift[:, None]).ravel()).reshape(len(a_pi), len(a_po))
                 valid = jd >= 0
                 if not valid[1:].any():
                     return self.skip("no gonio nodes are related by a rotation about the normal")
-                partner = v[:, np.zeros_like(jd), :, np.where(valid, jd, 0)]
-                # advanced indexing moved the broadcast (φi, φo) axes first: put them back
-                partner = np.moveaxis(partner, (0, 1), (1, 3))
-                partner = np.where(valid[None, :, None, :, None], partner, np.nan)
-            w = gonio_node_weights(grid)
-            return self._nodes(ctx, _rows(v, partner, w), max_relative, weighted, passed, note)
+
+                def partner(v):
+                    p = v[:, np.zeros_like(jd), :, np.where(valid, jd, 0)]
+                    # advanced indexing moved the broadcast (φi, φo) axes first: put them back
+                    p = np.moveaxis(p, (0, 1), (1, 3))
+                    return np.where(valid[None, :, None, :, None], p, np.nan)
+            return self._nodes(ctx, _rows(ctx, partner, gonio_node_weights(grid)), max_relative, weighted, passed,
+                               note)
 
         def rotate(wi, wo, rng):
             psi = rng.uniform(0.0, 2 * np.pi, wi.shape[0])
@@ -168,7 +176,6 @@ class Bilateral(_Pairwise):
         b = ctx.brdf
         if ctx.on_grid:
             grid = b.grid
-            v = data_values(ctx)
             if grid.parameterization == "rusinkiewicz":
                 fold = grid.phi_d_fold
                 if "bilateral" in fold:
@@ -179,7 +186,10 @@ class Bilateral(_Pairwise):
                 j = match_axis(ax, target)
                 if np.any(j < 0):
                     return self.skip("the φd nodes have no mirror partners (−φd)")
-                return self._nodes(ctx, phi_d_pairs(grid, v, j), max_relative, weighted)
+                def rows():
+                    for key, v in data_blocks(ctx):
+                        yield phi_d_pairs(grid, v, j, key)
+                return self._nodes(ctx, rows, max_relative, weighted)
             a_ti, a_pi, a_to, a_po = grid.axes
             if grid.relative_to == "specular":
                 j = np.broadcast_to(match_axis(a_po, -a_po.values)[None, :], (len(a_pi), len(a_po)))
@@ -190,11 +200,12 @@ class Bilateral(_Pairwise):
             if not valid.any():
                 return self.skip("no gonio nodes are mirror images about the plane of incidence")
             ib = np.broadcast_to(np.arange(len(a_pi))[:, None], j.shape)
-            partner = v[:, ib, :, np.where(valid, j, 0)]
-            partner = np.moveaxis(partner, (0, 1), (1, 3))
-            partner = np.where(valid[None, :, None, :, None], partner, np.nan)
-            w = gonio_node_weights(grid)
-            return self._nodes(ctx, _rows(v, partner, w), max_relative, weighted)
+
+            def partner(v):
+                p = v[:, ib, :, np.where(valid, j, 0)]
+                p = np.moveaxis(p, (0, 1), (1, 3))
+                return np.where(valid[None, :, None, :, None], p, np.nan)
+            return self._nodes(ctx, _rows(ctx, partner, gonio_node_weights(grid)), max_relative, weighted)
 
         def mirror(wi, wo, rng):
             th, ph, td, pd = io_to_hd(wi, wo)

@@ -104,9 +104,10 @@ class FileFormat:
     #: shape and dims but holds no data (a broadcast view: never read it). The writer creates the
     #: file with every coordinate, auxiliary variable and attribute, then takes
     #: ``writer.write(key, block)`` (``key`` a tuple of slices over ``brdf``'s dims, ``block`` float
-    #: samples cast to the storage type by the writer) in any order, ``writer.update_attrs(dict)``
-    #: (global attributes set after the pre-export checks, e.g. the check report) and
-    #: ``writer.close()``; it is a context manager. ``writer.chunks`` is the storage chunk shape
+    #: samples cast to the storage type by the writer) in any order, ``writer.close()`` and then
+    #: ``writer.update(dataset)`` (after the pre-export checks: the variables of ``dataset`` the
+    #: file lacks, e.g. the albedo curve, are added and its global attributes, e.g. the check
+    #: report, are set); it is a context manager. ``writer.chunks`` is the storage chunk shape
     #: of ``brdf`` (writes aligned to it are fastest). None: the format is written whole.
     stream: Callable | None = None
 

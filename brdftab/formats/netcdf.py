@@ -41,7 +41,9 @@ def read_netcdf(path):
     except (OSError, ValueError, RuntimeError, KeyError, IndexError, TypeError) as exc:
         raise FormatError(f"{path}: not a readable netCDF file ({_first_line(exc)})") from None
     try:
-        return Table(ds)
+        table = Table(ds)
+        table.closers.append(ds.close)
+        return table
     except ParameterError as exc:  # a value the file holds, named (e.g. a duplicate channel name)
         raise FormatError(f"{path}: {exc}") from None
     except (KeyError, ValueError, TypeError, IndexError) as exc:
@@ -176,47 +178,96 @@ def _text(c) -> str:
 
 
 def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
-    """Write ``table`` to ``path``: coordinates and attributes through xarray, then ``brdf``
-    chunk by chunk (each chunk a :func:`~brdftab._progress.write_step`, so progress is shown
-    and an interrupt acts between chunks)."""
+    """Write ``table`` to ``path`` through :func:`stream_netcdf`, one storage chunk of ``brdf`` at
+    a time (each a :func:`~brdftab._progress.write_step`, so progress is shown and an interrupt
+    acts between chunks)."""
+    from ..table import blocks
+
     _FORMAT.validate_options({"dtype": dtype, "complevel": complevel})  # the declared Params
     var = table.ds["brdf"]
-    ds, encoding = _cf_layout(table.ds)
-    for name in ds.coords:
-        if ds[name].dtype.kind == "f":
-            encoding[name] = {"_FillValue": None}
-    for name in ds.data_vars:  # auxiliary variables (e.g. merl_raw_ulp_correction): compressed, no fill
-        if name != "brdf":
-            encoding[name] = {**encoding.get(name, {}), "zlib": complevel > 0, "complevel": complevel,
-                              "_FillValue": None}
-    rest = ds.drop_vars("brdf")
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # xarray's note on coordinates no remaining variable uses: brdf will
-        rest.to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=encoding)
-
-    store = np.dtype(dtype)
-    k, step = _chunking(var.shape, store.itemsize)
-    chunks = (1,) * k + (step,) + tuple(var.shape[k + 1:])
-    attrs = _attrs(var.attrs)
-    aux = [c for c in ds.coords if c not in ds.dims and set(ds[c].dims) <= set(var.dims)]
-    if aux:
-        attrs["coordinates"] = " ".join(aux)
     total, done = int(var.size), 0
     write_step(0, total)
-    with netCDF4.Dataset(path, "a") as nc:
-        if "coordinates" in nc.ncattrs():  # xarray lists coordinates no written variable uses: brdf does
-            nc.delncattr("coordinates")
-        nc.set_auto_maskandscale(False)
-        out = nc.createVariable("brdf", store, var.dims, zlib=complevel > 0, complevel=complevel, shuffle=True,
-                                chunksizes=chunks, fill_value=False)
-        out.setncatts(attrs)
-        for lead in np.ndindex(*var.shape[:k]):
-            for start in range(0, var.shape[k], step):
-                idx = lead + (slice(start, start + step),)
-                block = np.asarray(var.variable[idx].values, dtype=store)
-                out[idx] = block
-                done += block.size
-                write_step(done, total)
+    with stream_netcdf(table.ds, path, dtype, complevel) as out:
+        for key in blocks(var.shape, math.prod(out.chunks), align=out.chunks):
+            block = var.variable[key].values
+            out.write(key, block)
+            done += block.size
+            write_step(done, total)
+
+
+class NetcdfStream:
+    """The block writer of :func:`stream_netcdf` (see ``FileFormat.stream``)."""
+
+    def __init__(self, template, path, dtype: str = "float64", complevel: int = 4):
+        self.path = path
+        var = template["brdf"]
+        ds, encoding = _cf_layout(template)
+        for name in ds.coords:
+            if ds[name].dtype.kind == "f":
+                encoding[name] = {"_FillValue": None}
+        for name in ds.data_vars:  # auxiliary variables (e.g. merl_raw_ulp_correction): compressed, no fill
+            if name != "brdf":
+                encoding[name] = {**encoding.get(name, {}), "zlib": complevel > 0, "complevel": complevel,
+                                  "_FillValue": None}
+        rest = ds.drop_vars("brdf")  # (brdf's data, a placeholder in a streamed template, is never read)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # xarray's note on coordinates no remaining variable uses: brdf will
+            rest.to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=encoding)
+        self.dtype = np.dtype(dtype)
+        k, step = _chunking(var.shape, self.dtype.itemsize)
+        self.chunks = (1,) * k + (step,) + tuple(var.shape[k + 1:])
+        attrs = _attrs(var.attrs)
+        aux = [c for c in ds.coords if c not in ds.dims and set(ds[c].dims) <= set(var.dims)]
+        if aux:
+            attrs["coordinates"] = " ".join(aux)
+        self._written = set(ds.variables)
+        self._nc = netCDF4.Dataset(path, "a")
+        if "coordinates" in self._nc.ncattrs():  # xarray lists coordinates no written variable uses: brdf does
+            self._nc.delncattr("coordinates")
+        self._nc.set_auto_maskandscale(False)
+        self._var = self._nc.createVariable("brdf", self.dtype, var.dims, zlib=complevel > 0, complevel=complevel,
+                                            shuffle=True, chunksizes=self.chunks, fill_value=False)
+        self._var.setncatts(attrs)
+
+    def write(self, key, block) -> None:
+        self._var[tuple(key)] = np.asarray(block, dtype=self.dtype)
+
+    def update(self, extra) -> None:
+        """Add the variables of the dataset ``extra`` (e.g. the albedo curve the checks computed)
+        and set its global attributes, after the samples are written; the file is reopened when
+        the writer was closed."""
+        self.close()
+        out, encoding = _cf_layout(extra)
+        new = out.drop_vars([v for v in out.variables if v in self._written])
+        encoding = {k: v for k, v in encoding.items() if k in new.variables}
+        if new.variables:
+            for name in new.variables:
+                if new[name].dtype.kind == "f":
+                    encoding[name] = {**encoding.get(name, {}), "_FillValue": None}
+            new.attrs = {}
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                new.to_netcdf(self.path, mode="a", engine="netcdf4", encoding=encoding)
+        with netCDF4.Dataset(self.path, "a") as nc:
+            nc.setncatts(_attrs(dict(extra.attrs)))
+
+    def close(self) -> None:
+        if self._nc is not None:
+            self._nc.close()
+            self._nc = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
+def stream_netcdf(template, path, dtype: str = "float64", complevel: int = 4) -> NetcdfStream:
+    """A block writer of a netCDF table (``FileFormat.stream``): coordinates, auxiliary
+    variables and attributes of ``template`` written now, ``brdf`` created chunked
+    (:data:`CHUNK_BYTES` per chunk) and filled by ``write(key, block)``."""
+    return NetcdfStream(template, path, dtype, complevel)
 
 
 def stored_netcdf(table, dtype: str = "float64", **_):
@@ -239,4 +290,5 @@ _FORMAT = register(FileFormat(
     ),
     precision=1e-12,  # float64 samples (float32 when dtype = float32: 1e-6)
     stored=stored_netcdf,
+    stream=stream_netcdf,
 ))

@@ -182,15 +182,25 @@ class Grid:
     def sliced(self, lo: int, hi: int) -> "Grid":
         """The same grid with only nodes ``lo:hi`` of its first (non-periodic) axis; the axis
         keeps its domain. Lets a table too large to load evaluate from a slab of it."""
+        if self.axes[0].period is not None:
+            raise ValueError("the first axis is periodic")
+        return self.block((slice(lo, hi),))
+
+    def block(self, key) -> "Grid":
+        """The nodes ``key`` (a tuple of slices over the leading axes) as a grid of their own:
+        the same node coordinates, bit for bit, each axis keeping its warp, period and domain.
+        A table larger than memory is tabulated, written and checked block by block on these."""
         import copy
 
-        a = self.axes[0]
-        if a.period is not None:
-            raise ValueError("the first axis is periodic")
+        axes = list(self.axes)
+        for k, s in enumerate(key):
+            a = axes[k]
+            axes[k] = Axis(a.name, a.values[s], a.warp, a.period, a.wrap, a.domain, a.rule)
         g = copy.copy(self)
-        g.axes = (Axis(a.name, a.values[lo:hi], a.warp, None, a.wrap, a.domain, a.rule),) + tuple(self.axes[1:])
+        g.axes = tuple(axes)
         g._trig = [(np.cos(x.values), np.sin(x.values)) for x in g.axes]
         g._above = None
+        g._direction_tables = None
         return g
 
     def domain_text(self) -> str:
