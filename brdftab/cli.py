@@ -304,8 +304,8 @@ def _format_names() -> str:
 # --------------------------------------------------------------------------------------------
 @_runs_on(".convert", ".checks")
 @main.command()
-@click.argument("source", metavar="IN", type=click.Path(dir_okay=False, path_type=Path))
-@click.argument("target", metavar="OUT", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("source", metavar="IN", type=click.Path(path_type=Path))
+@click.argument("target", metavar="OUT", type=click.Path(path_type=Path))
 @click.option("--to", "fmt", metavar="FORMAT",
               help="Output format (default: from OUT's extension); one of " + _format_names() + ".")
 @click.option("--grid", "grid_text", metavar="GRID",
@@ -458,7 +458,7 @@ def _load_source(source: Path):
 
 @_runs_on(".spec", ".formats", ".geometry")
 @main.command("eval")
-@click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("source", type=click.Path(path_type=Path))
 @click.option("--wi-deg", required=True, help="Incident direction 'theta,phi' in degrees.")
 @click.option("--wo-deg", required=True, help="Outgoing direction 'theta,phi' in degrees.")
 @click.option("--wavelength-nm", "wavelengths", multiple=True, type=float,
@@ -513,7 +513,7 @@ def eval_(source, wi_deg, wo_deg, wavelengths, as_json):
 # --------------------------------------------------------------------------------------------
 @_runs_on(".formats")
 @main.command()
-@click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("file", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def info(file, as_json):
     """Describe a table file: grid, channels, provenance and value range."""
