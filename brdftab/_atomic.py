@@ -151,6 +151,8 @@ def atomic_path(target, overwrite: bool = False, inputs=()):
                 if _out_of_space(target.parent):  # e.g. "NetCDF: HDF error" on a full disk
                     raise _full(target) from None
                 raise
+            if not folder and target.is_dir():  # a store's path (.zarr) given to a file format
+                raise BrdftabError(f"{target}: is a folder, not a file")
             try:
                 if folder:
                     _commit_folder(tmp, target, overwrite)

@@ -443,7 +443,7 @@ def _is_table_file(path: Path) -> bool:
 
 
 def _load_source(source: Path):
-    if not _is_table_file(source):
+    if not source.is_dir() and not _is_table_file(source):  # a folder: a store, or one error line
         from .spec import load_spec
 
         s = load_spec(source)

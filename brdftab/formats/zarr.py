@@ -33,9 +33,13 @@ __all__ = ["read_zarr", "write_zarr", "stream_zarr", "is_store", "ZarrWriter"]
 #: Uncompressed bytes per chunk of ``brdf`` (chosen by ``benchmarks/bench_storage.py``, see
 #: ``formats/zarr.md``): chunks of shape ``(1,)*k + (s,) + shape[k+1:]``, like the netCDF writer.
 CHUNK_BYTES = 4 << 20
-#: Blosc's inner compressor and shuffle (chosen by the same measurement); ``complevel`` sets its
-#: level, 0 stores the chunks uncompressed.
-CNAME, SHUFFLE = "zstd", "shuffle"
+#: The compressor (chosen by the same measurement); ``complevel`` sets its level, 0 stores the
+#: chunks uncompressed. One of :data:`CODECS`.
+CODEC = "blosc-zstd"
+#: The compressors measured: Blosc (zstd or lz4 inside, byte shuffle), zstd, gzip (netCDF's
+#: zlib). Blosc chunks carry a CRC-32C (zarr format 3; a damaged Blosc chunk can crash its
+#: decoder instead of failing), zstd chunks their content checksum; gzip has its own.
+CODECS = ("blosc-zstd", "blosc-lz4", "zstd", "gzip")
 #: Bytes of ``brdf`` a write of a whole table sends to zarr in one call (whole chunks, which zarr
 #: compresses in parallel).
 BLOCK_BYTES = 32 << 20
@@ -261,35 +265,37 @@ def _chunking(shape, itemsize: int, target: int | None = None) -> tuple:
     return (1,) * len(shape)  # pragma: no cover - the last axis alone always fits
 
 
-def _compressors(zarr_format: int, complevel: int, cname: str | None = None, shuffle: str | None = None):
-    """The codec of ``brdf`` and the auxiliary variables (None: uncompressed)."""
+def _compressors(zarr_format: int, complevel: int, codec: str | None = None):
+    """The codecs after serialisation of ``brdf`` and the auxiliary variables (None: none)."""
+    codec = CODEC if codec is None else codec
     if complevel <= 0:
         return None
-    cname = CNAME if cname is None else cname
-    shuffle = SHUFFLE if shuffle is None else shuffle
+    if codec.startswith("blosc-") and zarr_format == 2:
+        codec = "zstd"  # format 2 has no checksum codec to guard Blosc's decoder: zstd's own checksum
     if zarr_format == 2:
         import numcodecs
 
-        mode = {"shuffle": numcodecs.Blosc.SHUFFLE, "bitshuffle": numcodecs.Blosc.BITSHUFFLE,
-                "noshuffle": numcodecs.Blosc.NOSHUFFLE}[shuffle]
-        return (numcodecs.Blosc(cname=cname, clevel=complevel, shuffle=mode),)
-    from zarr.codecs import BloscCodec
+        return ((numcodecs.Zstd(level=complevel, checksum=True),) if codec == "zstd"
+                else (numcodecs.GZip(level=complevel),))
+    from zarr.codecs import BloscCodec, Crc32cCodec, GzipCodec, ZstdCodec
 
-    return (BloscCodec(cname=cname, clevel=complevel, shuffle=shuffle),)
+    if codec.startswith("blosc-"):
+        return (BloscCodec(cname=codec[6:], clevel=complevel, shuffle="shuffle"), Crc32cCodec())
+    return (ZstdCodec(level=complevel, checksum=True),) if codec == "zstd" else (GzipCodec(level=complevel),)
 
 
 class ZarrWriter:
     """The block writer of a zarr store (see :attr:`brdftab.formats.FileFormat.stream`)."""
 
     def __init__(self, template, path, dtype: str = "float64", complevel: int = 5, zarr_format: int = 3,
-                 chunk_bytes: int | None = None, cname: str | None = None, shuffle: str | None = None):
+                 chunk_bytes: int | None = None, codec: str | None = None):
         zarr = _zarr()
         self.path = Path(path)
         var = template["brdf"]
         self.dtype = np.dtype(dtype)
         self.shape = tuple(var.shape)
         rest, brdf_attrs = _layout(template)
-        codecs = _compressors(zarr_format, complevel, cname, shuffle)
+        codecs = _compressors(zarr_format, complevel, codec)
         encoding = {}
         for name in rest.variables:
             enc = {"compressors": codecs}
@@ -348,7 +354,7 @@ def blocks(shape, chunks, itemsize: int, block_bytes: int | None = None):
     """Keys (tuples of slices) covering ``shape`` in whole ``chunks`` of the form
     ``(1,)*k + (s,) + shape[k+1:]``, each about ``block_bytes`` (several chunks along axis k)."""
     block_bytes = BLOCK_BYTES if block_bytes is None else block_bytes
-    k = next((i for i, c in enumerate(chunks) if c != 1 or i == len(chunks) - 1), 0)
+    k = next(i for i in range(len(shape)) if tuple(chunks[i + 1:]) == tuple(shape[i + 1:]))
     step = chunks[k] * max(1, block_bytes // max(1, math.prod(chunks) * itemsize))
     for lead in np.ndindex(*shape[:k]):
         for start in range(0, shape[k], step):
