@@ -293,8 +293,8 @@ def _reports_of(result) -> list:
 #: The formats brdftab reads and writes, with their extensions, as ``convert --to`` lists them:
 #: a copy of :func:`brdftab.formats.usable` kept here so that ``--help`` does not import the
 #: format modules (xarray, netCDF4, the models); a test holds it equal to the registry.
-USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("merl", (".binary",)), ("rgl", (".bsdf",)),
-                  ("exr", (".exr",)))
+USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("zarr", (".zarr",)), ("merl", (".binary",)),
+                  ("rgl", (".bsdf",)), ("exr", (".exr",)))
 
 
 def _format_names() -> str:

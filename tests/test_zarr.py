@@ -272,6 +272,16 @@ def test_a_damaged_store_is_one_error(tmp_path, rgb, monkeypatch):
         res = cli(*cmd)
         one_error(res.stderr, res.exit_code, "damaged store: the chunk brdf/c/1/0/0/0 of 'brdf' is missing")
     assert not (tmp_path / "o.nc").exists()
+    # format 2 (zstd's checksum guards the chunks)
+    brdftab.save(rgb, tmp_path / "v2.zarr", zarr_format=2)
+    chunk = tmp_path / "v2.zarr" / "brdf" / "1.0.0.0"
+    data = chunk.read_bytes()
+    chunk.write_bytes(data[:20] + bytes(b ^ 0x5A for b in data[20:60]) + data[60:])
+    with pytest.raises(FormatError, match=r"damaged sample data in 'brdf' \(.*corrupt"):
+        brdftab.open(tmp_path / "v2.zarr").values
+    chunk.write_bytes(data[:len(data) // 2])
+    with pytest.raises(FormatError, match="damaged sample data in 'brdf'"):
+        brdftab.open(tmp_path / "v2.zarr").values
 
 
 # -- atomic writes of a folder --------------------------------------------------------------------

@@ -4,8 +4,8 @@ The store holds the same dataset as a netCDF table (see ``formats/zarr.md`` and
 ``formats/netcdf.md``): variable ``brdf`` [sr-1], coordinates in radians, CF-style attributes
 and brdftab provenance, the channel names as the label variable ``channel_name``, and the
 optional ``specular_reflectance`` and albedo variables. ``brdf`` is written block by block
-(:func:`stream_zarr`) in chunks of whole trailing axes, compressed with Blosc (zstd, byte
-shuffle); ``dtype`` chooses float64 (default, exact) or float32 storage. Reading is lazy, and a
+(:func:`stream_zarr`) in chunks of whole trailing axes of about 4 MiB, compressed with zstd
+(level 3, with its checksum); ``dtype`` chooses float64 (default, exact) or float32 storage. Reading is lazy, and a
 chunk file missing from the store is an error, never read as the fill value.
 """
 
@@ -35,7 +35,7 @@ __all__ = ["read_zarr", "write_zarr", "stream_zarr", "is_store", "ZarrWriter"]
 CHUNK_BYTES = 4 << 20
 #: The compressor (chosen by the same measurement); ``complevel`` sets its level, 0 stores the
 #: chunks uncompressed. One of :data:`CODECS`.
-CODEC = "blosc-zstd"
+CODEC = "zstd"
 #: The compressors measured: Blosc (zstd or lz4 inside, byte shuffle), zstd, gzip (netCDF's
 #: zlib). Blosc chunks carry a CRC-32C (zarr format 3; a damaged Blosc chunk can crash its
 #: decoder instead of failing), zstd chunks their content checksum; gzip has its own.
@@ -287,7 +287,7 @@ def _compressors(zarr_format: int, complevel: int, codec: str | None = None):
 class ZarrWriter:
     """The block writer of a zarr store (see :attr:`brdftab.formats.FileFormat.stream`)."""
 
-    def __init__(self, template, path, dtype: str = "float64", complevel: int = 5, zarr_format: int = 3,
+    def __init__(self, template, path, dtype: str = "float64", complevel: int = 3, zarr_format: int = 3,
                  chunk_bytes: int | None = None, codec: str | None = None):
         zarr = _zarr()
         self.path = Path(path)
@@ -344,7 +344,7 @@ class ZarrWriter:
         return False
 
 
-def stream_zarr(template, path, dtype: str = "float64", complevel: int = 5, zarr_format: int = 3) -> ZarrWriter:
+def stream_zarr(template, path, dtype: str = "float64", complevel: int = 3, zarr_format: int = 3) -> ZarrWriter:
     """A :class:`ZarrWriter` creating the store ``path`` for ``template`` (a table's dataset)."""
     _FORMAT.validate_options({"dtype": dtype, "complevel": complevel, "zarr_format": zarr_format})
     return ZarrWriter(template, path, dtype=dtype, complevel=complevel, zarr_format=zarr_format)
@@ -361,7 +361,7 @@ def blocks(shape, chunks, itemsize: int, block_bytes: int | None = None):
             yield tuple(slice(i, i + 1) for i in lead) + (slice(start, min(start + step, shape[k])),)
 
 
-def write_zarr(table, path, dtype: str = "float64", complevel: int = 5, zarr_format: int = 3):
+def write_zarr(table, path, dtype: str = "float64", complevel: int = 3, zarr_format: int = 3):
     """Write ``table`` to the store ``path`` block by block through :func:`stream_zarr` (each block
     a :func:`~brdftab._progress.write_step`; a table on disk is read one block at a time)."""
     var = table.ds["brdf"]
@@ -391,7 +391,7 @@ _FORMAT = register(FileFormat(
     params=(
         Param("dtype", "choice", "Storage type of the samples (values are computed in float64).", default="float64",
               choices=("float64", "float32")),
-        Param("complevel", "int", "Blosc (zstd) compression level (0: none).", default=5, minimum=0, maximum=9),
+        Param("complevel", "int", "zstd compression level (0: none).", default=3, minimum=0, maximum=19),
         Param("zarr_format", "int", "zarr format version: 3 (current) or 2 (for readers that know only 2).",
               default=3, minimum=2, maximum=3),
     ),
