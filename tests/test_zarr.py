@@ -117,6 +117,29 @@ def test_float32_option_stores_float32_and_the_checks_judge_it(tmp_path, rgb):
     assert np.array_equal(stored.values, back.values.astype(np.float64))
 
 
+def test_a_store_another_writer_sharded_is_read_and_a_missing_shard_named(tmp_path, rgb):
+    path = tmp_path / "t.zarr"
+    brdftab.save(rgb, path)
+    g = zarr.open_group(path, mode="r+")
+    attrs, dims = dict(g["brdf"].attrs), g["brdf"].metadata.dimension_names
+    del g["brdf"]
+    a = g.create_array("brdf", shape=rgb.values.shape, dtype="f8", chunks=(2, 10, 16, 3), shards=(4, 10, 16, 3),
+                       attributes=attrs, dimension_names=dims, fill_value=np.nan)
+    a[:] = rgb.values
+    with pytest.warns(UserWarning, match="Consolidated metadata"):  # zarr-python's note on format 3
+        zarr.consolidate_metadata(path)
+    assert np.array_equal(brdftab.open(path).values, rgb.values)
+    (path / "brdf" / "c" / "2" / "0" / "0" / "0").unlink()  # θh rows 8..11
+    with pytest.raises(FormatError, match=r"the chunk brdf/c/2/0/0/0 of 'brdf' is missing"):
+        brdftab.open(path).values
+
+
+def test_a_store_takes_any_folder_name(tmp_path, rgb):
+    path = tmp_path / os.fsdecode(b"g\xff \xe2\x9c\x93.zarr")  # not UTF-8, and non-ASCII
+    brdftab.save(rgb, path)
+    assert np.array_equal(brdftab.open(path).values, rgb.values)
+
+
 # -- lazy opening, block writing ------------------------------------------------------------------
 
 def _declared(path, n_theta_h=2000, written=10):

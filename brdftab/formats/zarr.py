@@ -72,7 +72,7 @@ class _CheckedArray(BackendArray):
         self.root = root
         self.shape = tuple(array.shape)
         self.dtype = np.dtype(array.dtype)
-        self._chunks = tuple(array.chunks)
+        self._chunks = tuple(getattr(array, "shards", None) or array.chunks)  # the stored objects: shards if any
         self._seen: set = set()
 
     def __getitem__(self, key):
