@@ -211,6 +211,19 @@ def test_the_block_writer_takes_blocks_in_any_order(tmp_path, rgb):
     assert zarr.open_group(path, mode="r")["brdf"].chunks == w.chunks
 
 
+def test_copies_of_a_writer_write_disjoint_chunks_of_one_store(tmp_path, rgb, monkeypatch):
+    import pickle
+
+    monkeypatch.setattr(zarr_format, "CHUNK_BYTES", 10 * 16 * 3 * 8)  # one θh row per chunk
+    path = tmp_path / "t.zarr"
+    w = zarr_format.stream_zarr(rgb.ds, path)
+    copies = [pickle.loads(pickle.dumps(w)) for _ in range(2)]  # as sent to worker processes
+    for i in range(rgb.values.shape[0]):
+        copies[i % 2].write((slice(i, i + 1),), rgb.values[i:i + 1])
+    w.close()
+    assert np.array_equal(brdftab.open(path).values, rgb.values)
+
+
 def test_writing_reports_steps_and_reads_an_open_table_block_by_block(tmp_path, rgb, monkeypatch):
     brdftab.save(rgb, tmp_path / "t.nc")
     source = brdftab.open(tmp_path / "t.nc")

@@ -285,7 +285,11 @@ def _compressors(zarr_format: int, complevel: int, codec: str | None = None):
 
 
 class ZarrWriter:
-    """The block writer of a zarr store (see :attr:`brdftab.formats.FileFormat.stream`)."""
+    """The block writer of a zarr store (see :attr:`brdftab.formats.FileFormat.stream`).
+
+    A writer pickles: copies sent to other processes write blocks of the same store in
+    parallel, each block whole chunks (:attr:`chunks`) that no other copy writes; the writer
+    that created the store closes it once all have finished."""
 
     def __init__(self, template, path, dtype: str = "float64", complevel: int = 3, zarr_format: int = 3,
                  chunk_bytes: int | None = None, codec: str | None = None):
