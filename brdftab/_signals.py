@@ -218,8 +218,8 @@ def read_array(var, slab_bytes: int | None = None) -> np.ndarray:
     """``var``'s values as a numpy array (an xarray ``DataArray`` or ``Variable``).
 
     Values already in memory are returned as they are. Values in a file are read in slabs
-    along the first axis (whole chunks where the file says how it is chunked: netCDF/HDF5, zarr) with
-    signals held while the library reads, and a :func:`checkpoint` after each slab: Ctrl-C
+    along the first axis (whole chunks where the file says how it is chunked: netCDF/HDF5,
+    zarr) with signals held while the library reads, and a :func:`checkpoint` after each slab: Ctrl-C
     stops a large read within a fraction of a second instead of being lost inside netCDF4.
     """
     variable = getattr(var, "variable", var)

@@ -500,9 +500,9 @@ def _stamp_input(table, report, source) -> None:
 
 def _stamp_provenance(payload, table, source: Path, target: Path, grid) -> None:
     """What the output records of where it came from: the source file's name and SHA-256 (of a
-    store: of its files, see below) (``converted_from``, ``converted_from_sha256``) and its ``history``: the source's steps,
-    then this conversion (a convert of a convert keeps every step). ``grid``: the grid it was
-    resampled onto (None: copied)."""
+    store: of its files, see below) (``converted_from``, ``converted_from_sha256``) and its
+    ``history``: the source's steps, then this conversion (a convert of a convert keeps every
+    step). ``grid``: the grid it was resampled onto (None: copied)."""
     import datetime as _dt
     import hashlib
 
