@@ -117,6 +117,21 @@ def test_float32_option_stores_float32_and_the_checks_judge_it(tmp_path, rgb):
     assert np.array_equal(stored.values, back.values.astype(np.float64))
 
 
+def test_missing_markers_are_missing_samples_as_in_netcdf(tmp_path, rgb):
+    ds = rgb.ds.copy(deep=True)
+    v = ds["brdf"].values
+    v[3, 2, :5, 0] = -1.0
+    v[7, 1, 4, :] = -2.0
+    ds["brdf"].attrs["missing_value"] = np.array([-1.0, -2.0])
+    t = brdftab.table.Table(ds)
+    brdftab.save(t, tmp_path / "t.nc")
+    brdftab.save(t, tmp_path / "t.zarr")
+    nc, zr = brdftab.open(tmp_path / "t.nc"), brdftab.open(tmp_path / "t.zarr")
+    _tables_equal(nc, zr)
+    assert zr.missing.sum() == 5 + 3 and np.array_equal(zr.missing, nc.missing)
+    assert zr.statistics()["missing"] == 8
+
+
 def test_a_store_another_writer_sharded_is_read_and_a_missing_shard_named(tmp_path, rgb):
     path = tmp_path / "t.zarr"
     brdftab.save(rgb, path)
