@@ -6,6 +6,10 @@ grid file: whatever ``overwrite`` says), a folder, anything but a regular file (
 a FIFO, a socket: ``--overwrite`` never replaces one by a regular file), an existing file
 unless ``overwrite``, and a path below something that is not a folder.
 
+**Stores.** A format written as a folder (a zarr store, ``.zarr``) registers its suffix with
+:func:`register_store`. Its targets are folders: an existing store is replaced only with
+``overwrite``, and a folder that is not such a store, or a file, is never replaced by one.
+
 **Claims.** Before any work starts, a run claims each of its targets with an advisory lock
 file beside it, ``.<name>.lock`` (``fcntl.flock``). The kernel releases the lock of a process
 that dies, SIGKILL included, so a lock file left by a killed run is stale and the next run
@@ -35,7 +39,8 @@ try:  # POSIX
 except ImportError:  # pragma: no cover - Windows
     fcntl = None
 
-__all__ = ["check_target", "claim", "same_file", "side_name", "LOCK_SUFFIX", "PARTIAL_SUFFIX"]
+__all__ = ["check_target", "claim", "same_file", "side_name", "register_store", "store_test", "LOCK_SUFFIX",
+           "PARTIAL_SUFFIX"]
 
 LOCK_SUFFIX = ".lock"
 PARTIAL_SUFFIX = ".partial-"
@@ -119,8 +124,24 @@ def _not_regular(target: Path) -> str | None:
     return "not a regular file"  # pragma: no cover - no other kinds on POSIX
 
 
+#: Suffix (lower case) of a store's target -> (format name, ``is_store(path) -> bool``).
+_STORES: dict = {}
+
+
+def register_store(suffix: str, name: str, is_store) -> None:
+    """Targets ending in ``suffix`` are folders written as format ``name``'s stores;
+    ``is_store(folder)`` tells whether an existing folder is one (and so may be replaced)."""
+    _STORES[suffix.lower()] = (name, is_store)
+
+
+def store_test(target):
+    """``(format name, is_store)`` when ``target`` is a store's path (by its suffix), else None."""
+    return _STORES.get(Path(target).suffix.lower())
+
+
 def check_target(target, overwrite: bool = False, inputs=()) -> None:
-    """Refuse a target that is an input of the run, a folder, not a regular file, exists
+    """Refuse a target that is an input of the run, a folder (unless the target is a store's,
+    see :func:`register_store`, and the folder is such a store), not a regular file, exists
     (unless ``overwrite``), or lies below something that is not a folder.
 
     ``inputs`` are the files the run reads (paths, or ``(path, "what it is")`` pairs); a
@@ -135,7 +156,16 @@ def check_target(target, overwrite: bool = False, inputs=()) -> None:
         if same_file(target, src):
             raise BrdftabError(f"{target}: is {what} {src}, which this run reads; write the output to another "
                                "path")
-    if target.is_dir():
+    store = store_test(target)
+    if store is not None:
+        name, is_store = store
+        if target.is_dir() and not is_store(target):
+            raise BrdftabError(f"{target}: is a folder that is not a {name} store; brdftab replaces only a store "
+                               "(remove the folder or write to another path)")
+        if target.exists() and not target.is_dir():
+            raise BrdftabError(f"{target}: is a file; a {target.suffix} output is a folder (a {name} store): remove "
+                               "the file or write to another path")
+    elif target.is_dir():
         raise BrdftabError(f"{target}: is a folder, not a file")
     kind = _not_regular(target)
     if kind is not None:

@@ -218,8 +218,8 @@ def read_array(var, slab_bytes: int | None = None) -> np.ndarray:
     """``var``'s values as a numpy array (an xarray ``DataArray`` or ``Variable``).
 
     Values already in memory are returned as they are. Values in a file are read in slabs
-    along the first axis (whole HDF5 chunks where the file says how it is chunked) with
-    signals held while the library reads, and a :func:`checkpoint` after each slab: Ctrl-C
+    along the first axis (whole chunks where the file says how it is chunked: netCDF/HDF5,
+    zarr) with signals held while the library reads, and a :func:`checkpoint` after each slab: Ctrl-C
     stops a large read within a fraction of a second instead of being lost inside netCDF4.
     """
     variable = getattr(var, "variable", var)
@@ -229,7 +229,7 @@ def read_array(var, slab_bytes: int | None = None) -> np.ndarray:
     n0 = variable.shape[0]
     row = max(1, variable.size // max(1, n0)) * variable.dtype.itemsize
     rows = max(1, slab_bytes // row)
-    chunks = variable.encoding.get("chunksizes")
+    chunks = variable.encoding.get("chunksizes") or variable.encoding.get("chunks")  # netCDF, zarr
     if chunks and chunks[0] and chunks[0] < n0:
         rows = max(int(chunks[0]), rows // int(chunks[0]) * int(chunks[0]))
     out = None

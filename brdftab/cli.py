@@ -293,8 +293,8 @@ def _reports_of(result) -> list:
 #: The formats brdftab reads and writes, with their extensions, as ``convert --to`` lists them:
 #: a copy of :func:`brdftab.formats.usable` kept here so that ``--help`` does not import the
 #: format modules (xarray, netCDF4, the models); a test holds it equal to the registry.
-USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("merl", (".binary",)), ("rgl", (".bsdf",)),
-                  ("exr", (".exr",)))
+USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("zarr", (".zarr",)), ("merl", (".binary",)),
+                  ("rgl", (".bsdf",)), ("exr", (".exr",)))
 
 
 def _format_names() -> str:
@@ -304,8 +304,8 @@ def _format_names() -> str:
 # --------------------------------------------------------------------------------------------
 @_runs_on(".convert", ".checks")
 @main.command()
-@click.argument("source", metavar="IN", type=click.Path(dir_okay=False, path_type=Path))
-@click.argument("target", metavar="OUT", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("source", metavar="IN", type=click.Path(path_type=Path))
+@click.argument("target", metavar="OUT", type=click.Path(path_type=Path))
 @click.option("--to", "fmt", metavar="FORMAT",
               help="Output format (default: from OUT's extension); one of " + _format_names() + ".")
 @click.option("--grid", "grid_text", metavar="GRID",
@@ -443,7 +443,7 @@ def _is_table_file(path: Path) -> bool:
 
 
 def _load_source(source: Path):
-    if not _is_table_file(source):
+    if not source.is_dir() and not _is_table_file(source):  # a folder: a store, or one error line
         from .spec import load_spec
 
         s = load_spec(source)
@@ -458,7 +458,7 @@ def _load_source(source: Path):
 
 @_runs_on(".spec", ".formats", ".geometry")
 @main.command("eval")
-@click.argument("source", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("source", type=click.Path(path_type=Path))
 @click.option("--wi-deg", required=True, help="Incident direction 'theta,phi' in degrees.")
 @click.option("--wo-deg", required=True, help="Outgoing direction 'theta,phi' in degrees.")
 @click.option("--wavelength-nm", "wavelengths", multiple=True, type=float,
@@ -513,7 +513,7 @@ def eval_(source, wi_deg, wo_deg, wavelengths, as_json):
 # --------------------------------------------------------------------------------------------
 @_runs_on(".formats")
 @main.command()
-@click.argument("file", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("file", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print JSON.")
 def info(file, as_json):
     """Describe a table file: grid, channels, provenance and value range."""

@@ -43,7 +43,12 @@ def expand_paths(patterns) -> tuple:
             hits = sorted(glob.glob(pat, recursive=True))
             if not hits:
                 errors.append((pat, BrdftabError(f"{pat}: no file matches")))
-            paths += [Path(h) for h in hits if not Path(h).is_dir()]
+            from .formats import is_store
+
+            # files, and stores (folders); never the files inside a store
+            stores = [Path(h) for h in hits if is_store(h)]
+            paths += [Path(h) for h in hits if (Path(h) in stores or not Path(h).is_dir())
+                      and not any(s in Path(h).parents for s in stores)]
         else:
             paths.append(Path(pat))
     return paths, errors
@@ -223,9 +228,11 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
 def _refuse_missing(inputs, errors) -> None:
     """Every input must be there before any checking starts (a spec may take minutes): one
     line naming each missing file, folder given as a file and glob that matches nothing."""
+    from .formats import is_store
+
     problems = [" ".join(str(exc).split()) for _, exc in errors]
     for p in inputs:
-        if p.is_dir():
+        if p.is_dir() and not is_store(p):
             problems.append(f"{p}: is a folder, not a file")
         elif not p.exists():
             problems.append(f"{p}: no such file" + (" (a broken symbolic link)" if p.is_symlink() else ""))

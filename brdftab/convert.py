@@ -499,10 +499,10 @@ def _stamp_input(table, report, source) -> None:
 
 
 def _stamp_provenance(payload, table, source: Path, target: Path, grid) -> None:
-    """What the output records of where it came from: the source file's name and SHA-256
-    (``converted_from``, ``converted_from_sha256``) and its ``history``: the source's steps,
-    then this conversion (a convert of a convert keeps every step). ``grid``: the grid it was
-    resampled onto (None: copied)."""
+    """What the output records of where it came from: the source file's name and SHA-256 (of a
+    store: of its files, see below) (``converted_from``, ``converted_from_sha256``) and its
+    ``history``: the source's steps, then this conversion (a convert of a convert keeps every
+    step). ``grid``: the grid it was resampled onto (None: copied)."""
     import datetime as _dt
     import hashlib
 
@@ -510,10 +510,16 @@ def _stamp_provenance(payload, table, source: Path, target: Path, grid) -> None:
     from ._version import __version__
 
     digest = hashlib.sha256()
-    with open(source, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 22), b""):
-            digest.update(block)
-            checkpoint()
+    # a store (a folder) is hashed file by file in the order of their paths in it: each path
+    # (relative, UTF-8, "/"-separated), a NUL byte, then the file's bytes
+    files = sorted(p for p in source.rglob("*") if p.is_file()) if source.is_dir() else [source]
+    for path in files:
+        if path != source:
+            digest.update(path.relative_to(source).as_posix().encode("utf-8", "surrogateescape") + b"\0")
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 22), b""):
+                digest.update(block)
+                checkpoint()
     attrs = payload.ds.attrs
     before = getattr(table, "ds", None)
     steps = str(before.attrs.get("history", "") if before is not None else "").strip()

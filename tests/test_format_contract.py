@@ -3,7 +3,8 @@
 For each format that writes: a BRDF is written; the file is recognised by its content (under a
 name with a foreign extension) and by its extension; it reads back within the format's stated
 precision (``FileFormat.precision``: the largest relative difference from what was written);
-truncated and corrupted files give one brdftab error line and exit 2 from the command line,
+truncated and corrupted files (for a store, a folder: its metadata and a chunk of samples
+truncated, corrupted or missing) give one brdftab error line and exit 2 from the command line,
 never a traceback; unknown options are refused with did-you-mean. For every format: unknown
 options are refused. A deliberately broken toy format proves the suite can fail. Per-format
 test files keep only what is specific to each format.
@@ -11,6 +12,7 @@ test files keep only what is specific to each format.
 
 from __future__ import annotations
 
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -63,7 +65,10 @@ def check_format_contract(fmt, folder: Path):
     assert formats.format_for(path).name == fmt.name or any(
         f.name == fmt.name for f in formats.FORMATS.values() if ext in f.extensions), f"{fmt.name}: extension"
     alias = folder / "contract.data"
-    alias.write_bytes(path.read_bytes())
+    if path.is_dir():  # a store (a folder): copied whole
+        shutil.copytree(path, alias)
+    else:
+        alias.write_bytes(path.read_bytes())
     assert formats.detect(alias).name == fmt.name, f"{fmt.name}: not recognised by its content"
     # read back within the stated precision, from both names
     wi, wo = pairs()
@@ -75,12 +80,7 @@ def check_format_contract(fmt, folder: Path):
         assert rel.max() <= fmt.precision, (f"{fmt.name}: read back differs by {rel.max():.3g} (stated precision "
                                            f"{fmt.precision:g})")
     # truncated and corrupted files: one brdftab error line, exit 2 (or a readable table), no traceback
-    data = path.read_bytes()
-    damaged = {"truncated": data[: len(data) // 2], "head-only": data[:40],
-               "corrupted": data[:16] + bytes(b ^ 0x5A for b in data[16:200]) + data[200:]}
-    for what, content in damaged.items():
-        bad = folder / f"{what}{ext}"
-        bad.write_bytes(content)
+    for what, bad in damaged_copies(path, folder, ext):
         try:
             t = brdftab.open(bad)
             t.eval(wi[:5], wo[:5])
@@ -92,6 +92,35 @@ def check_format_contract(fmt, folder: Path):
         if proc.returncode == 2:
             assert len(proc.stderr.strip().splitlines()) == 1, f"{fmt.name}: {what}: {proc.stderr}"
     check_options_refused(fmt)
+
+
+def damaged_copies(path: Path, folder: Path, ext: str):
+    """``(what, path)`` of damaged copies of ``path``: truncated, cut to its head, corrupted; for
+    a store (a folder), its metadata cut short and one of its largest files (a chunk of samples)
+    truncated, corrupted or missing."""
+    def damage(data):
+        return {"truncated": data[: len(data) // 2], "head-only": data[:40],
+                "corrupted": data[:16] + bytes(b ^ 0x5A for b in data[16:200]) + data[200:]}
+
+    if not path.is_dir():
+        for what, content in damage(path.read_bytes()).items():
+            bad = folder / f"{what}{ext}"
+            bad.write_bytes(content)
+            yield what, bad
+        return
+    files = sorted((p for p in path.rglob("*") if p.is_file()), key=lambda p: (-p.stat().st_size, str(p)))
+    meta = next(p for p in (path / "zarr.json", path / ".zgroup") if p.exists())
+    for name, victim in (("metadata", meta), ("chunk", files[0])):
+        cut = damage(victim.read_bytes())
+        for what, content in (("truncated", cut["truncated"]), ("corrupted", cut["corrupted"]), ("missing", None)):
+            bad = folder / f"{name}-{what}{ext}"
+            shutil.copytree(path, bad)
+            target = bad / victim.relative_to(path)
+            if content is None:
+                target.unlink()
+            else:
+                target.write_bytes(content)
+            yield f"{name} {what}", bad
 
 
 def check_options_refused(fmt):

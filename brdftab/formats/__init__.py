@@ -12,6 +12,9 @@ A format states (after xarray's ``BackendEntrypoint`` and ALTA's data plug-ins):
 * which grid it stores: ``native_grid(requested, options)`` returns the grid the format
   writes for a requested grid (``None`` = any grid: the caller's). MERL answers the MERL grid
   whatever is asked; netCDF keeps the requested one;
+* a format stored as a folder (zarr) says so with ``store(folder) -> bool``, which tells
+  whether an existing folder is one of its stores: :func:`detect` recognises such a folder, and
+  output paths with the format's extensions are folders (:func:`brdftab._locks.register_store`);
 * which optional library it needs: ``requires`` (module names); when one is missing the
   format reports itself unavailable with one line, and every other format keeps working.
 
@@ -43,7 +46,7 @@ from typing import Callable
 import numpy as np
 
 from .._atomic import atomic_path
-from .._locks import check_target
+from .._locks import check_target, register_store
 from .._signals import held_signals
 from ..errors import BrdftabError, BrdftabWarning, FormatError, ParameterError, shown
 from ..params import parse_params, suggest
@@ -51,7 +54,7 @@ from ..registry import Registry
 
 __all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "write_prepared", "format_for",
            "target_grid", "prepare", "stored", "cast_samples", "NotStorable", "available", "usable",
-           "naming"]
+           "naming", "is_store"]
 
 #: Bytes of a file's head passed to ``magic`` and ``sniff`` (enough for the comment lines that
 #: start a Zemax ``.bsdf`` text file before its first keyword).
@@ -110,6 +113,9 @@ class FileFormat:
     #: report, are set); it is a context manager. ``writer.chunks`` is the storage chunk shape
     #: of ``brdf`` (writes aligned to it are fastest). None: the format is written whole.
     stream: Callable | None = None
+    #: ``store(folder) -> bool`` for a format written as a folder (a directory store): True
+    #: when an existing folder is one of its stores. None: the format is a file.
+    store: Callable | None = None
 
     @property
     def options(self) -> dict:
@@ -174,6 +180,9 @@ FORMATS = Registry("format")
 
 def register(fmt: FileFormat) -> FileFormat:
     """Add a format (each format module registers its own on import)."""
+    if fmt.store is not None:
+        for ext in fmt.extensions:
+            register_store(ext, fmt.name, fmt.store)
     return FORMATS.register(fmt)
 
 
@@ -217,9 +226,22 @@ def format_for(path=None, format: str | None = None) -> FileFormat:
     raise BrdftabError(f"{path}: cannot tell the format from the extension {suffix!r} (known: {known})")
 
 
-def detect(path) -> FileFormat:
-    """Format of an existing file: by content (magic bytes, sniffers), then by extension."""
+def is_store(path) -> bool:
+    """True when ``path`` is a folder that a format stored as folders reads (a zarr store)."""
     path = Path(path)
+    return path.is_dir() and any(f.store is not None and f.store(path) for f in FORMATS.values())
+
+
+def detect(path) -> FileFormat:
+    """Format of an existing file: by content (magic bytes, sniffers), then by extension; a
+    folder by the formats stored as folders (:attr:`FileFormat.store`)."""
+    path = Path(path)
+    if path.is_dir():
+        for fmt in FORMATS.values():
+            if fmt.store is not None and fmt.store(path):
+                return fmt
+        stores = " or ".join(f.name for f in FORMATS.values() if f.store is not None)
+        raise FormatError(f"{path}: is a folder, neither a table file nor a {stores} store")
     try:
         with open(path, "rb") as fh:
             head = fh.read(HEAD_BYTES)
@@ -389,7 +411,7 @@ def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, o
 
 #: Format modules shipped with brdftab (each registers itself on import). A module whose
 #: optional library is missing must still import: it imports that library inside functions.
-BUILTIN = ("netcdf", "merl", "rgl", "exr", "zemax")
+BUILTIN = ("netcdf", "zarr", "merl", "rgl", "exr", "zemax")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")
