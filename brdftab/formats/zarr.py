@@ -330,6 +330,31 @@ class ZarrWriter:
         """Set global attributes (e.g. the check report, known only after the checks)."""
         self.group.attrs.update(_attrs(attrs))
 
+    def update(self, extra) -> None:
+        """After the checks: add the variables of the dataset ``extra`` the store lacks (the
+        albedo curve) and set its global attributes (the report); the metadata is consolidated
+        again."""
+        from ..table import LABEL_SUFFIX
+
+        self.close()
+        have = set(self.group.array_keys())
+        new = [n for n in extra.data_vars if n not in have]
+        if new:
+            part = extra[new]
+            part = part.drop_vars([c for c in part.coords if c in have or f"{c}{LABEL_SUFFIX}" in have])
+            part.attrs = {}
+            codecs = _compressors(self.zarr_format, 3)
+            encoding = {n: {"compressors": codecs, **({"_FillValue": None} if part[n].dtype.kind == "f" else {})}
+                        for n in part.variables}
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                part.to_zarr(self.path, mode="a", zarr_format=self.zarr_format, consolidated=False,
+                             encoding=encoding)
+        self.group = _zarr().open_group(self.path, mode="r+")
+        self.group.attrs.update(_attrs(dict(extra.attrs)))
+        self.closed = False
+        self.close()
+
     def close(self) -> None:
         """Finish the store: its metadata consolidated into one file (xarray opens it in one read)."""
         if self.closed:
