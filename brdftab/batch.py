@@ -122,11 +122,35 @@ def result_lines(result) -> tuple:
     return out, err
 
 
+def _relative(res: dict, root) -> dict:
+    """Paths under ``root`` in a unit's messages shown relative to it, as a serial run given
+    relative paths shows them (a worker is given absolute paths)."""
+    if not root or Path(root).parent == Path(root):
+        return res
+    head = str(Path(root)) + os.sep
+
+    def rel(text):
+        return None if text is None else text.replace(head, "")
+
+    res["lines"] = [rel(x) for x in res["lines"]]
+    res["stderr"] = [rel(x) for x in res["stderr"]]
+    res["error"] = rel(res["error"])
+    for o in res["outputs"]:
+        if o.get("path"):
+            o["path"] = rel(o["path"])
+    return res
+
+
 def tabulate_unit(path: str, member, sha256, out_dir, overwrite: bool, allow_invalid, checks: dict,
-                  progress=False) -> dict:
+                  progress=False, root=None) -> dict:
     """Tabulate one spec (``member``: the index of a sweep member, or None) and write its
     outputs with :func:`brdftab.pipeline.run`; returns a plain dict: ``lines`` / ``errors`` to
-    print, ``outputs`` (per output: path and the figures of its report), ``error`` and ``code``."""
+    print, ``outputs`` (per output: path and the figures of its report), ``error`` and ``code``
+    (paths under ``root`` shown relative to it)."""
+    return _relative(_tabulate_unit(path, member, sha256, out_dir, overwrite, allow_invalid, checks, progress), root)
+
+
+def _tabulate_unit(path, member, sha256, out_dir, overwrite, allow_invalid, checks, progress) -> dict:
     from .pipeline import run
     from .spec import load_spec
     from .sweep import member_spec
@@ -388,8 +412,11 @@ def tabulate_many(paths, out_dir=None, overwrite=False, allow_invalid=None, chec
     where = (lambda p: str(Path(p).absolute())) if far else str
     out = None if out_dir is None else where(out_dir)
     inner = progress if (len(units) == 1 and not far) else (progress if progress is False else False)
+    cwd = str(Path.cwd())
+    root = None if out_dir is not None and Path(out_dir).is_absolute() else cwd  # show paths as given
     calls = [(where(plan.path), None if m is None else m.index, plan.sweep.sha256 if m is not None else None, out,
-              overwrite, allow_invalid, checks or {}, inner) for plan, m in units]
+              overwrite, allow_invalid, checks or {}, inner, root if far and not plan.path.is_absolute() else None)
+             for plan, m in units]
     bar_on = progress if len(units) > 1 or far else False
     with engine, unit_bar(len(calls), "tabulating", "run", bar_on) as bar:
         for i, res in ordered(_progressed(engine.map(tabulate_unit, calls), bar), len(calls)):

@@ -29,7 +29,7 @@ import numpy as np
 
 from . import _atomic, _signals
 from ._version import __version__
-from .cli_validate import check_options, cli_layer, origin_option, validate
+from .cli_validate import check_options, cli_layer, engine_options, origin_option, validate
 from .errors import BrdftabError, printable as _printable, shown
 
 DEBUG_KEY = "brdftab.debug"
@@ -241,16 +241,6 @@ def preload(args) -> None:
 
 
 # --------------------------------------------------------------------------------------------
-def engine_options(command):
-    """``--workers N`` / ``--scheduler ADDRESS``: run many units on dask.distributed."""
-    command = click.option("--scheduler", metavar="ADDRESS",
-                           help="Run on the dask.distributed cluster whose scheduler listens at ADDRESS "
-                                "(e.g. tcp://10.0.0.5:8786).")(command)
-    return click.option("--workers", type=click.IntRange(min=1), metavar="N",
-                        help="Run on a local dask.distributed cluster of N worker processes (needs the 'dist' "
-                             "extra). Default: one after another in this process.")(command)
-
-
 @_runs_on(".pipeline", ".batch", ".sweep")
 @main.command()
 @click.argument("specs", metavar="SPEC...", nargs=-1, required=True,

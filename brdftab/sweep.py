@@ -378,8 +378,19 @@ def summary_rows(sweep, results: dict, out_dir=None) -> tuple:
     """(columns, rows) of the summary: one row per member and output — the member's index and
     swept values, the output's path, its status (``written``, ``written, checks failed``,
     ``refused`` by a check, ``error``), the largest directional albedo a(θi) with its θi and
-    channel, the white-sky albedo per channel, each check's verdict, and the error."""
+    channel, the white-sky albedo per channel, each check's verdict, and the error. Output paths
+    are relative to the summary's folder when they lie below it."""
+    import os
+
     from .checks import CHECKS
+
+    folder = os.path.abspath(sweep.summary_target(out_dir).parent)
+
+    def shown(p):  # relative to the summary's folder when it lies below it (the table moves with the files)
+        if not p:
+            return ""
+        a = os.path.abspath(p)
+        return os.path.relpath(a, folder) if a.startswith(folder + os.sep) else a
 
     rows, checks = [], []
     for m in sweep.members:
@@ -393,7 +404,7 @@ def summary_rows(sweep, results: dict, out_dir=None) -> tuple:
         for o in outs:
             row = {"member": m.index}
             row.update({k: m.values[k] for k in sweep.keys})
-            row.update({"output": o.get("path") or "", "status": o["status"],
+            row.update({"output": shown(o.get("path")), "status": o["status"],
                         "albedo_max": o.get("albedo_max"), "albedo_max_theta_i_deg": o.get("albedo_max_theta_i_deg"),
                         "albedo_max_channel": o.get("albedo_max_channel"),
                         "white_sky": o.get("white_sky"), "error": res.get("error") or ""})
