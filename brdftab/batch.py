@@ -236,7 +236,8 @@ class Engine:
 
         share = max(1, threads() // self.workers)
         self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
-                                    dashboard_address=None, silence_logs=logging.ERROR,
+                                    dashboard_address=":0",  # any free port: a taken 8787 would warn
+                                    silence_logs=logging.ERROR,
                                     env={"BRDFTAB_THREADS": str(share)})
         self.client = Client(self.cluster)
         return self

@@ -142,11 +142,24 @@ def _check_one(path: Path, layers, progress, origin=None, bar=False, reads=None)
     if path.suffix.lower() == ".toml":
         from .pipeline import validate as validate_spec
         from .spec import load_spec
+        from .sweep import is_sweep, load
 
-        spec = load_spec(path)
-        if reads is not None:
-            reads += spec.inputs
-        return validate_spec(spec, checks=layers, progress=progress)
+        if is_sweep(path):  # every member, as tabulate would write it; a member that cannot be made is an error
+            sweep = load(path)
+            bad = next((m for m in sweep.members if m.error is not None), None)
+            if bad is not None:
+                raise type(bad.error)(f"{path} [{bad.describe()}]: {str(bad.error).removeprefix(f'{path}: ')}")
+            specs = [(m.spec, f" [{m.describe()}]") for m in sweep.members]
+        else:
+            specs = [(load_spec(path), "")]
+        out = []
+        for spec, member in specs:
+            if reads is not None:
+                reads += spec.inputs
+            for r in validate_spec(spec, checks=layers, progress=progress):
+                r.subject = f"{spec.path}{member}{r.subject.removeprefix(str(spec.path))}"  # which member
+                out.append(r)
+        return out
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BrdftabWarning)
         table = formats.read(path)
