@@ -152,3 +152,11 @@ def test_without_dask_the_options_say_how_to_install_it(tmp_path, args):
     one_error(p.stderr, p.returncode, f"{args[2]} needs dask.distributed, which is not installed",
               'pip install "brdftab[dist]"')
     assert names(tmp_path) == ["white.toml"]
+
+
+def test_two_runs_writing_the_same_file_refuse_the_command(tmp_path):
+    for name in ("a.toml", "b.toml"):
+        (tmp_path / name).write_text(LAMBERT.format(albedo=0.5, out="same.nc"))
+    r = cli("tabulate", tmp_path / "a.toml", tmp_path / "b.toml")
+    one_error(r.stderr, r.exit_code, "a.toml and", "b.toml both write", "same.nc")
+    assert names(tmp_path) == ["a.toml", "b.toml"]

@@ -168,3 +168,22 @@ def test_a_sweep_spec_does_not_stand_for_one_model(tmp_path):
                     + '[[output]]\npath = "l-{model.albedo}.nc"\n')
     r = cli("eval", spec, "--wi-deg", "0,0", "--wo-deg", "0,0")
     one_error(r.stderr, r.exit_code, "s.toml: sweep: this spec describes 2 tables")
+
+
+def test_a_netcdf_summary_member_numbers_and_members_written_despite_failed_checks(tmp_path):
+    spec = tmp_path / "lam.toml"
+    spec.write_text('[sweep]\n"model.albedo" = [0.5, 0.7]\nsummary = "sub/table.nc"\n[model]\nname = "lambert"\n'
+                    + GRID + '[[output]]\npath = "sub/m{member}.nc"\n[validation.albedo]\nwhite_sky = 0.5\n'
+                    'level = "error"\n')
+    r = cli("tabulate", spec, "--allow-invalid")
+    assert r.exit_code == 0, r.output  # --allow-invalid: written, the failure recorded
+    assert names(tmp_path / "sub") == ["m0.nc", "m1.nc", "table.nc"]
+    with xr.open_dataset(tmp_path / "sub" / "table.nc") as ds:
+        assert list(ds["output"].values) == ["m0.nc", "m1.nc"]
+        assert list(ds["status"].values) == ["written", "written, checks failed"]
+        assert list(ds["check_albedo"].values) == ["pass", "fail"]
+        assert np.allclose(ds["model.albedo"].values, [0.5, 0.7], rtol=0, atol=0)
+        assert np.allclose(ds["albedo_max"].values, [0.5, 0.7], rtol=1e-9)
+        assert ds.attrs["spec_sha256"] == hashlib.sha256(spec.read_bytes()).hexdigest()
+    _, attrs = _values(tmp_path / "sub" / "m1.nc")
+    assert attrs["validation_passed"] == 0 and json.loads(attrs["sweep_values"]) == {"model.albedo": 0.7}
