@@ -368,10 +368,11 @@ def _plan(paths, out_dir, overwrite) -> list:
             continue
         for target, spec in _targets(plan, out_dir):
             key = os.path.normcase(os.path.abspath(target))
-            if key in seen and seen[key] is not plan:
-                raise BrdftabError(f"{seen[key].path} and {plan.path} both write {target}: give them different "
-                                   "output paths, or run them apart")
-            seen[key] = plan
+            if key in seen and (seen[key][0] is not plan or seen[key][1] is not spec):
+                other = seen[key][0]
+                who = f"{other.path} and {plan.path}" if other is not plan else f"two members of {plan.path}"
+                raise BrdftabError(f"{who} both write {target}: give them different output paths, or run them apart")
+            seen[key] = (plan, spec)
     return plans
 
 

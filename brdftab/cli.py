@@ -560,8 +560,8 @@ def info(file, as_json):
             verdict = {True: "passed", False: "FAILED", None: "recorded"}[v.get("passed")]
             lines.append(f"  {what:<22} {verdict}" + (f": {_one_line(v['summary'])}" if v.get("summary") else ""))
     for key in ("origin", "reciprocal", "isotropic", "parameterization", "sample_position", "phi_d_fold",
-                "theta_h_spacing", "relative_to", "converted_from", "converted_from_sha256", "brdftab_version",
-                "created"):
+                "theta_h_spacing", "relative_to", "converted_from", "converted_from_sha256", "sweep_member",
+                "sweep_values", "brdftab_version", "created"):
         if key in attrs:  # only what the file records
             lines.append(f"  {key + ':':<22} {attrs[key]}")
     steps = [step for step in str(attrs.get("history", "")).splitlines() if step.strip()]

@@ -50,6 +50,8 @@ def test_a_product_sweep_gives_the_tables_of_separate_runs(tmp_path):
         assert np.array_equal(got, want)
         assert json.loads(attrs["sweep_values"]) == {"model.alpha": a, "model.n": n}
         assert attrs["sweep_member"] == i and attrs["spec_sha256"] == sha and attrs["spec_file"] == "ggx.toml"
+    info = cli("info", tmp_path / "ggx-0.3-1.6.nc").stdout
+    assert "sweep_member:          11" in info and 'sweep_values:          {"model.alpha": 0.3, "model.n": 1.6}' in info
     rows = _rows(tmp_path / "ggx-sweep.csv")
     assert [(float(r["model.alpha"]), float(r["model.n"]), r["output"], r["status"]) for r in rows] == \
         [(a, n, f"ggx-{a}-{n}.nc", "written") for a in alphas for n in ns]
