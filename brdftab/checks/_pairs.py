@@ -74,6 +74,11 @@ def sample_pairs(n: int, seed: int = 0, scales=SCALES):
     return wi, wo, weight
 
 
+#: Rows summed together by one compiled pass: the statistics are sums of per-block sums in block
+#: order, the same figures whatever the number of threads (a serial run and a worker process agree).
+BLOCK = 1 << 15
+
+
 def asymmetry(f1, f2, weight=None, floor: float = 1e-9) -> dict:
     """Statistics of ``|f1 − f2|`` relative to their mean, over pairs ``[N, C]``.
 
@@ -101,12 +106,16 @@ def asymmetry(f1, f2, weight=None, floor: float = 1e-9) -> dict:
     thresh = max(floor * top, np.finfo(float).tiny)
     w = np.zeros(0) if weight is None else np.ascontiguousarray(weight, float)
 
-    def stats(lo, hi):
-        num, den = np.zeros(nc), np.zeros(nc)
-        r = _stats_pass(f1[lo:hi], f2[lo:hi], thresh, w[lo:hi] if w.size else w, num, den)
-        return r + (num, den, lo)
+    def stats(b0, b1):  # blocks [b0, b1): the sums have the same partial sums on any number of threads
+        out = []
+        for lo in range(b0 * BLOCK, min(b1 * BLOCK, n), BLOCK):
+            hi = min(lo + BLOCK, n)
+            num, den = np.zeros(nc), np.zeros(nc)
+            r = _stats_pass(f1[lo:hi], f2[lo:hi], thresh, w[lo:hi] if w.size else w, num, den)
+            out.append(r + (num, den, lo))
+        return out
 
-    parts = parallel_rows(stats, n)
+    parts = [p for chunk in parallel_rows(stats, -(-n // BLOCK), min_rows=2) for p in chunk]
     n_sig = sum(int(p[0]) for p in parts)
     out = {"compared": n - excluded, "excluded": excluded, "max_relative": 0.0, "rms_relative": 0.0,
            "worst": None, "weighted": None}
