@@ -199,9 +199,9 @@ def _settings(raw, path):
             continue
         parts = parse_key(key)
         if not parts or (len(parts) == 1 and parts[0] not in ("description",)):
-            top = [k for k in ("model", "grid", "output", "validation") if not parts or k != parts[0]]
             raise _fail(path, f"sweep.{key}", f"unknown key{suggest(key, SETTINGS)}; [sweep] holds mode, summary and "
-                        f"dotted keys of the spec ({', '.join(t + '.…' for t in top)}) with their lists of values")
+                        "dotted keys of the spec (model.…, grid.…, output[i].…, validation.…) with their lists of "
+                        "values")
         if parts[0] == "sweep":
             raise _fail(path, f"sweep.{key}", "a sweep cannot sweep its own settings")
         canon = _canonical(parts)
