@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -237,7 +238,7 @@ class Engine:
         share = max(1, threads() // self.workers)
         self.cluster = LocalCluster(n_workers=self.workers, threads_per_worker=1, processes=True,
                                     dashboard_address=":0",  # any free port: a taken 8787 would warn
-                                    silence_logs=logging.ERROR,
+                                    silence_logs=logging.CRITICAL,  # one-line errors only, ours
                                     env={"BRDFTAB_THREADS": str(share)})
         self.client = Client(self.cluster)
         return self
@@ -266,13 +267,12 @@ class Engine:
         for fut in as_completed(futures):
             i = index[fut.key]
             try:
-                yield i, fut.result()
+                result = fut.result()
             except Exception as exc:  # the worker died (out of memory, killed): this unit failed
-                yield i, {"error": f"{calls[i][0]}: the worker running it failed ({type(exc).__name__}: "
+                result = {"error": f"{calls[i][0]}: the worker running it failed ({type(exc).__name__}: "
                                    f"{_one_line(exc)})", "code": 1, "lines": [], "stderr": [], "outputs": [],
                           "reports": [], "reads": [], "warnings": []}
-            finally:
-                fut.release()
+            yield i, result
 
 
 def ordered(results, n: int):
@@ -420,8 +420,37 @@ def tabulate_many(paths, out_dir=None, overwrite=False, allow_invalid=None, chec
               overwrite, allow_invalid, checks or {}, inner, root if far and not plan.path.is_absolute() else None)
              for plan, m in units]
     bar_on = progress if len(units) > 1 or far else False
+    started = time.time()
+    try:
+        _run_units(engine, units, calls, plans, bar_on, far, out_dir, overwrite, echo, echo_err, codes)
+    except BaseException:
+        if far:  # stopped: the files workers finished (up to the cluster's end) are written, say so
+            _finished_since(started, plans, out_dir)
+        raise
+    n = len(units) + sum(1 for p in plans for m in (p.sweep.members if p.sweep else ()) if m.error is not None) \
+        + sum(1 for p in plans if p.error is not None)
+    if n > 1:
+        failed = sum(1 for c in codes if c)
+        echo(f"{n - failed} of {n} runs written" + (f"; {failed} failed" if failed else ""))
+    return worst(codes)
+
+
+def _finished_since(started: float, plans, out_dir) -> None:
+    """Note as written every planned output renamed into place since ``started``."""
+    from ._atomic import completed, written_elsewhere
+
+    known = {os.path.abspath(p) for p in completed()}
+    for plan in plans:
+        if plan.error is None:
+            for target, spec in _targets(plan, out_dir):
+                with contextlib.suppress(OSError):
+                    if os.path.abspath(target) not in known and os.stat(target).st_mtime >= started - 1:
+                        written_elsewhere([target])
+
+
+def _run_units(engine, units, calls, plans, bar_on, far, out_dir, overwrite, echo, echo_err, codes) -> None:
     with engine, unit_bar(len(calls), "tabulating", "run", bar_on) as bar:
-        for i, res in ordered(_progressed(engine.map(tabulate_unit, calls), bar), len(calls)):
+        for i, res in ordered(_progressed(engine.map(tabulate_unit, calls), bar, far), len(calls)):
             plan, m = units[i]
             plan.results[None if m is None else m.index] = res
             show_warnings(res.get("warnings", ()))
@@ -437,17 +466,21 @@ def tabulate_many(paths, out_dir=None, overwrite=False, allow_invalid=None, chec
             if plan.sweep is not None and len(plan.results) == len(plan.sweep.members):
                 with _external(bar):
                     _summary(plan.sweep, plan.results, out_dir, overwrite, echo, echo_err, codes)
-    n = len(units) + sum(1 for p in plans for m in (p.sweep.members if p.sweep else ()) if m.error is not None) \
-        + sum(1 for p in plans if p.error is not None)
-    if n > 1:
-        failed = sum(1 for c in codes if c)
-        echo(f"{n - failed} of {n} runs written" + (f"; {failed} failed" if failed else ""))
-    return worst(codes)
 
 
-def _progressed(results, bar):
+def _written(res) -> None:
+    """Note the files a worker reports written (an interrupted run names them)."""
+    from ._atomic import written_elsewhere
+
+    written_elsewhere(o["path"] for o in res["outputs"] if o.get("path") and o["status"] != "refused")
+
+
+def _progressed(results, bar, far=False):
+    """Units as they finish: counted on the bar; files a worker wrote noted as written."""
     for item in results:
         bar.update(1)
+        if far:
+            _written(item[1])
         yield item
 
 
