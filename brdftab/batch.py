@@ -25,7 +25,8 @@ from pathlib import Path
 
 from .errors import BrdftabError
 
-__all__ = ["Engine", "tabulate_unit", "validate_unit", "tabulate_many", "MISSING_DASK"]
+__all__ = ["Engine", "tabulate_unit", "validate_unit", "tabulate_many", "counted", "ordered", "unit_bar",
+           "MISSING_DASK"]
 
 MISSING_DASK = 'needs dask.distributed, which is not installed: pip install "brdftab[dist]"'
 
@@ -203,18 +204,18 @@ class Engine:
     is the cores over the workers, at least 1), or the cluster whose scheduler listens at
     ``scheduler``. Use as a context manager; :meth:`map` yields ``(index, result)`` as units finish."""
 
-    def __init__(self, workers: int | None = None, scheduler: str | None = None, option: str = ""):
+    def __init__(self, workers: int | None = None, scheduler: str | None = None):
         if workers is not None and scheduler is not None:
             raise BrdftabError("--workers and --scheduler: give one (a local cluster of N workers, or the address "
                                "of a running scheduler)")
         self.workers, self.scheduler = workers, scheduler
-        self.option = option or ("--workers" if workers is not None else "--scheduler")
         self.client = self.cluster = None
         if self.distributed:
             try:
                 import distributed  # noqa: F401
             except ImportError:
-                raise BrdftabError(f"{self.option} {MISSING_DASK}") from None
+                option = "--workers" if workers is not None else "--scheduler"
+                raise BrdftabError(f"{option} {MISSING_DASK}") from None
 
     @property
     def distributed(self) -> bool:
@@ -275,7 +276,7 @@ class Engine:
             yield i, result
 
 
-def ordered(results, n: int):
+def ordered(results):
     """``(index, result)`` pairs in any order → results in index order, each as soon as every
     earlier one has arrived."""
     waiting, nxt = {}, 0
@@ -288,8 +289,7 @@ def ordered(results, n: int):
 
 @contextlib.contextmanager
 def unit_bar(total: int, desc: str, unit: str, enabled):
-    """A completion bar over units (``enabled`` None: on a terminal only); yields a callable
-    that prints a line without tearing the bar."""
+    """A tqdm bar counting finished units (``enabled`` None: on a terminal only)."""
     from tqdm.auto import tqdm
 
     bar = tqdm(total=total, desc=desc, unit=unit, disable=None if enabled is None else not enabled, leave=False)
@@ -450,7 +450,7 @@ def _finished_since(started: float, plans, out_dir) -> None:
 
 def _run_units(engine, units, calls, plans, bar_on, far, out_dir, overwrite, echo, echo_err, codes) -> None:
     with engine, unit_bar(len(calls), "tabulating", "run", bar_on) as bar:
-        for i, res in ordered(_progressed(engine.map(tabulate_unit, calls), bar, far), len(calls)):
+        for i, res in ordered(counted(engine.map(tabulate_unit, calls), bar, _written if far else None)):
             plan, m = units[i]
             plan.results[None if m is None else m.index] = res
             show_warnings(res.get("warnings", ()))
@@ -475,12 +475,12 @@ def _written(res) -> None:
     written_elsewhere(o["path"] for o in res["outputs"] if o.get("path") and o["status"] != "refused")
 
 
-def _progressed(results, bar, far=False):
-    """Units as they finish: counted on the bar; files a worker wrote noted as written."""
+def counted(results, bar, each=None):
+    """``(index, result)`` pairs as units finish, counted on ``bar`` (and given to ``each``)."""
     for item in results:
         bar.update(1)
-        if far:
-            _written(item[1])
+        if each is not None:
+            each(item[1])
         yield item
 
 

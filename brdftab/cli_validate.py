@@ -279,12 +279,12 @@ def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin, en
 def _validate_on(engine, inputs, reads, layers, origin, quiet) -> tuple:
     """(reports, errors) of every input checked on ``engine``'s cluster (absolute paths sent,
     reports back as plain data), in the order of the inputs: the same as a serial run's."""
-    from .batch import ordered, show_warnings, unit_bar, validate_unit
+    from .batch import counted, ordered, show_warnings, unit_bar, validate_unit
 
     calls = [(str(Path(p).absolute()), layers, origin) for p in inputs]
     results = [None] * len(inputs)
     with engine, unit_bar(len(calls), "validating", "file", False if quiet else None) as bar:
-        for i, res in ordered(_counted(engine.map(validate_unit, calls), bar), len(calls)):
+        for i, res in ordered(counted(engine.map(validate_unit, calls), bar)):
             results[i] = res
     reports, errors = [], []
     for path, res in zip(inputs, results):
@@ -297,12 +297,6 @@ def _validate_on(engine, inputs, reads, layers, origin, quiet) -> tuple:
             err.exit_code = res["code"]
             errors.append((shown(path), err))
     return reports, errors
-
-
-def _counted(results, bar):
-    for item in results:
-        bar.update(1)
-        yield item
 
 
 def _as_given(text: str, path: Path) -> str:

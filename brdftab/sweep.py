@@ -270,8 +270,9 @@ def _expand(raw, path, sha):
     """(Sweep without parsed specs, [member's raw spec]), and a function that refuses output
     path templates naming unknown keys or giving two members the same file."""
     keys, mode, summary = _settings(raw, path)
-    templates = [(i, item["path"]) for i, item in enumerate(raw.get("output") or [])
-                 if isinstance(raw.get("output"), list) and isinstance(item, dict) and isinstance(item.get("path"), str)]
+    outs = raw.get("output") if isinstance(raw.get("output"), list) else []
+    templates = [(i, item["path"]) for i, item in enumerate(outs)
+                 if isinstance(item, dict) and isinstance(item.get("path"), str)]
     base = {k: v for k, v in raw.items() if k != "sweep"}
     members, raws = [], []
     for index, combo in enumerate(_combinations(keys, mode)):

@@ -66,7 +66,8 @@ def _same_files(a: Path, b: Path) -> None:
         with xr.open_dataset(f) as x, xr.open_dataset(g) as y:
             assert sorted(x.variables) == sorted(y.variables)
             for v in x.variables:
-                assert x[v].dtype == y[v].dtype and np.array_equal(x[v].values, y[v].values, equal_nan=x[v].dtype.kind == "f"), (f.name, v)
+                nan = x[v].dtype.kind == "f"
+                assert x[v].dtype == y[v].dtype and np.array_equal(x[v].values, y[v].values, equal_nan=nan), (f.name, v)
                 assert json.dumps(x[v].attrs, default=str) == json.dumps(y[v].attrs, default=str)
             ax = {k: v for k, v in x.attrs.items() if k not in UNDATED}
             ay = {k: v for k, v in y.attrs.items() if k not in UNDATED}

@@ -95,7 +95,8 @@ def test_a_bad_value_is_reported_and_the_other_members_are_written(tmp_path):
     assert names(tmp_path / "out") == ["lam-0.25.nc", "lam-0.75.nc"]
     rows = _rows(tmp_path / "table.csv")
     assert [(r["model.albedo"], r["output"], r["status"]) for r in rows] == [
-        ("0.25", "out/lam-0.25.nc", "written"), ("1.2", "out/lam-1.2.nc", "error"), ("0.75", "out/lam-0.75.nc", "written")]
+        ("0.25", "out/lam-0.25.nc", "written"), ("1.2", "out/lam-1.2.nc", "error"),
+        ("0.75", "out/lam-0.75.nc", "written")]
     assert "model.albedo" in rows[1]["error"] and rows[1]["albedo_max"] == ""
     for row, albedo in ((rows[0], 0.25), (rows[2], 0.75)):  # a Lambertian a(θi) is its albedo at every θi
         assert float(row["albedo_max"]) == pytest.approx(albedo, rel=1e-9)
@@ -140,7 +141,8 @@ def test_a_misspelt_swept_key_is_the_spec_s_own_error(tmp_path):
     ('"model.alpha" = [0.1, 0.2]', "g.nc", "output[0].path: 'g.nc' gives the same file g.nc to two members"),
     ('"model.alpha" = [0.1, 0.2]', "g-{model.alhpa}.nc",
      "output[0].path: {model.alhpa} names no swept key (did you mean 'model.alpha'?)"),
-    ('"model.alpha" = [0.1, 0.2]\nmdoe = "zip"', "g-{model.alpha}.nc", "sweep.mdoe: unknown key (did you mean 'mode'?)"),
+    ('"model.alpha" = [0.1, 0.2]\nmdoe = "zip"', "g-{model.alpha}.nc",
+     "sweep.mdoe: unknown key (did you mean 'mode'?)"),
     ('"model.alpha" = 0.1', "g.nc", "sweep.model.alpha: expected a non-empty list of values"),
 ])
 def test_a_sweep_that_cannot_run_is_one_line_before_any_work(tmp_path, sweep, path, expected):
