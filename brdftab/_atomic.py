@@ -41,8 +41,15 @@ _completed: list = []  # targets renamed into place by this process
 
 
 def completed() -> list:
-    """Targets this process has written completely so far (renamed into place)."""
+    """Targets this process has written completely so far (renamed into place), and those its
+    worker processes reported written (:func:`written_elsewhere`)."""
     return list(_completed)
+
+
+def written_elsewhere(targets) -> None:
+    """Count ``targets``, written completely by a worker process of this run, as written (an
+    interrupted run names them among what it wrote)."""
+    _completed.extend(Path(t) for t in targets)
 
 
 def _partial_name(target: Path, pid) -> Path:

@@ -29,7 +29,7 @@ import numpy as np
 
 from . import _atomic, _signals
 from ._version import __version__
-from .cli_validate import check_options, cli_layer, origin_option, validate
+from .cli_validate import check_options, cli_layer, engine_options, origin_option, validate
 from .errors import BrdftabError, printable as _printable, shown
 
 DEBUG_KEY = "brdftab.debug"
@@ -241,9 +241,10 @@ def preload(args) -> None:
 
 
 # --------------------------------------------------------------------------------------------
-@_runs_on(".pipeline")
+@_runs_on(".pipeline", ".batch", ".sweep")
 @main.command()
-@click.argument("spec", type=click.Path(dir_okay=False, path_type=Path))
+@click.argument("specs", metavar="SPEC...", nargs=-1, required=True,
+                type=click.Path(dir_okay=False, path_type=Path))
 @click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Write outputs into DIR instead of the spec file's folder (created if missing).")
 @click.option("--overwrite", is_flag=True, help="Replace existing output files.")
@@ -252,42 +253,32 @@ def preload(args) -> None:
 @check_options
 @click.option("--progress/--no-progress", default=None,
               help="Progress bar (default: on a terminal, for runs over 2 s).")
-def tabulate(spec, out_dir, overwrite, allow_invalid, levels, settings, progress):
-    """Tabulate the model of SPEC on each output's grid, validate, and write its outputs."""
+@engine_options
+@click.pass_context
+def tabulate(ctx, specs, out_dir, overwrite, allow_invalid, levels, settings, progress, workers, scheduler):
+    """Tabulate the model of each SPEC on each output's grid, validate, and write its outputs.
+
+    A spec with a [sweep] table runs once per member and writes a summary table. Several
+    specs (and sweep members) run one after another, or in parallel with --workers or
+    --scheduler; a failed one reports its error while the others finish."""
+    from .batch import Engine, result_lines, tabulate_many
     from .pipeline import run
     from .spec import load_spec
+    from .sweep import is_sweep
 
     layer = cli_layer(levels, settings)
-    s = load_spec(spec)
-    result = run(s, out_dir=out_dir, overwrite=overwrite, allow_invalid=allow_invalid, progress=progress,
-                 checks=layer)
-    for path, t in zip(result.written, result.tables):
-        what = (f"{len(t.wavelengths)} wavelength{'s' if len(t.wavelengths) > 1 else ''}" if t.spectral
-                else f"channel{'s' if len(t.channels) > 1 else ''} {', '.join(t.channels)}")
-        grid = getattr(t, "grid", None)
-        click.echo(f"wrote {path} ({grid.describe() if grid is not None else 'its own grid'}, {what})")
-    # what the checks found in what was written: one line per report (outputs sharing a table share one)
-    for report, paths in _reports_of(result):
-        names = ", ".join(str(p) for p in paths)
-        if report.failures:
-            click.echo(f"brdftab: warning: {names} written despite failed checks: {report.summary()}", err=True)
-        elif report.warnings:
-            n = len(report.warnings)
-            click.echo(f"brdftab: warning: {names} written with {n} warning{'s' if n > 1 else ''}: "
-                       + "; ".join(f"{o.name}: {_one_line(o.detail)}" for o in report.warnings), err=True)
-
-
-def _reports_of(result) -> list:
-    """[(report, [paths written with it])] in the order written."""
-    out = []
-    for path, report in zip(result.written, result.reports):
-        for r, paths in out:
-            if r is report:
-                paths.append(path)
-                break
-        else:
-            out.append((report, [path]))
-    return out
+    Engine(workers, scheduler)  # a missing dask or both options: one line before anything is read
+    if len(specs) > 1 or workers is not None or scheduler is not None or is_sweep(specs[0]):
+        ctx.exit(tabulate_many(specs, out_dir=out_dir, overwrite=overwrite, allow_invalid=allow_invalid,
+                               checks=layer, progress=progress, workers=workers, scheduler=scheduler,
+                               echo=click.echo, echo_err=lambda text: click.echo(_printable(text), err=True)))
+    result = run(load_spec(specs[0]), out_dir=out_dir, overwrite=overwrite, allow_invalid=allow_invalid,
+                 progress=progress, checks=layer)
+    lines, warned = result_lines(result)
+    for line in lines:
+        click.echo(line)
+    for line in warned:  # what the checks found in what was written: one line per report
+        click.echo(line, err=True)
 
 
 #: The formats brdftab reads and writes, with their extensions, as ``convert --to`` lists them:
@@ -569,8 +560,8 @@ def info(file, as_json):
             verdict = {True: "passed", False: "FAILED", None: "recorded"}[v.get("passed")]
             lines.append(f"  {what:<22} {verdict}" + (f": {_one_line(v['summary'])}" if v.get("summary") else ""))
     for key in ("origin", "reciprocal", "isotropic", "parameterization", "sample_position", "phi_d_fold",
-                "theta_h_spacing", "relative_to", "converted_from", "converted_from_sha256", "brdftab_version",
-                "created"):
+                "theta_h_spacing", "relative_to", "converted_from", "converted_from_sha256", "sweep_member",
+                "sweep_values", "brdftab_version", "created"):
         if key in attrs:  # only what the file records
             lines.append(f"  {key + ':':<22} {attrs[key]}")
     steps = [step for step in str(attrs.get("history", "")).splitlines() if step.strip()]

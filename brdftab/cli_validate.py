@@ -133,6 +133,16 @@ def _config_file(path: Path) -> dict:
     return layer
 
 
+def engine_options(command):
+    """``--workers N`` / ``--scheduler ADDRESS``: run many units on dask.distributed."""
+    command = click.option("--scheduler", metavar="ADDRESS",
+                           help="Run on the dask.distributed cluster whose scheduler listens at ADDRESS "
+                                "(e.g. tcp://10.0.0.5:8786).")(command)
+    return click.option("--workers", type=click.IntRange(min=1), metavar="N",
+                        help="Run on a local dask.distributed cluster of N worker processes (needs the 'dist' "
+                             "extra). Default: one after another in this process.")(command)
+
+
 def origin_option(command):
     """``--origin``: the user's word on where a table's values come from."""
     return click.option("--origin", type=click.Choice(["analytic", "measured", "unknown"]), default=None,
@@ -153,11 +163,24 @@ def _check_one(path: Path, layers, progress, origin=None, bar=False, reads=None)
     if path.suffix.lower() == ".toml":
         from .pipeline import validate as validate_spec
         from .spec import load_spec
+        from .sweep import is_sweep, load
 
-        spec = load_spec(path)
-        if reads is not None:
-            reads += spec.inputs
-        return validate_spec(spec, checks=layers, progress=progress)
+        if is_sweep(path):  # every member, as tabulate would write it; a member that cannot be made is an error
+            sweep = load(path)
+            bad = next((m for m in sweep.members if m.error is not None), None)
+            if bad is not None:
+                raise type(bad.error)(f"{path} [{bad.describe()}]: {str(bad.error).removeprefix(f'{path}: ')}")
+            specs = [(m.spec, f" [{m.describe()}]") for m in sweep.members]
+        else:
+            specs = [(load_spec(path), "")]
+        out = []
+        for spec, member in specs:
+            if reads is not None:
+                reads += spec.inputs
+            for r in validate_spec(spec, checks=layers, progress=progress):
+                r.subject = f"{spec.path}{member}{r.subject.removeprefix(str(spec.path))}"  # which member
+                out.append(r)
+        return out
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BrdftabWarning)
         table = formats.read(path)
@@ -195,17 +218,23 @@ def list_checks() -> str:
 @click.option("--quiet", "-q", is_flag=True,
               help="No progress bar while the checks run (default: one on a terminal once they take over 1 s).")
 @origin_option
+@engine_options
 @click.pass_context
-def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_checks_, progress, quiet, origin):
+def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_checks_, progress, quiet, origin,
+             workers, scheduler):
     """Check BRDF tables and specs: reciprocity, energy, albedo, sample audit, symmetry,
     conventions and tabulation error.
 
     PATHS are table files or spec files (.toml); globs are expanded. Exit code 0 when every
     check passed (warnings allowed), 1 when a check failed, 2 when an input could not be read.
+    With --workers or --scheduler the inputs are checked in parallel; the report is the same.
     """
     if list_checks_:
         click.echo(list_checks())
         return
+    from .batch import Engine
+
+    engine = Engine(workers, scheduler)  # a missing dask or both options: one line before any check
     if not paths:
         raise BrdftabError("validate: give one or more table files or specs (or --list-checks)")
     layers = []
@@ -221,7 +250,7 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
     with contextlib.ExitStack() as outputs:
         if junit is not None:  # claimed before any check runs: an unwritable folder is refused now
             outputs.enter_context(claim([junit], overwrite=True, inputs=reads))
-        code = _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin)
+        code = _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin, engine)
     ctx.exit(code)
 
 
@@ -240,11 +269,13 @@ def _refuse_missing(inputs, errors) -> None:
         raise BrdftabError(f"{'; '.join(problems)} (nothing checked)")
 
 
-def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin) -> int:
+def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin, engine=None) -> int:
     from .checks import junit_xml, run_document
 
     reports, errors = [], []
-    for path in inputs:
+    if engine is not None and engine.distributed:
+        reports, errors = _validate_on(engine, inputs, reads, layers, origin, quiet)
+    for path in inputs if engine is None or not engine.distributed else ():
         try:
             reports += _check_one(path, layers, progress, origin, bar=not quiet and sys.stderr.isatty(), reads=reads)
         except BrdftabError as exc:
@@ -266,3 +297,38 @@ def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin) ->
         with atomic_path(junit, overwrite=True, inputs=reads) as tmp:
             tmp.write_text(junit_xml(reports, errors), encoding="utf-8")
     return 2 if errors else (1 if any(not r.passed for r in reports) else 0)
+
+
+def _validate_on(engine, inputs, reads, layers, origin, quiet) -> tuple:
+    """(reports, errors) of every input checked on ``engine``'s cluster (absolute paths sent,
+    reports back as plain data), in the order of the inputs: the same as a serial run's."""
+    from .batch import counted, ordered, show_warnings, unit_bar, validate_unit
+
+    calls = [(str(Path(p).absolute()), layers, origin) for p in inputs]
+    results = [None] * len(inputs)
+    with engine, unit_bar(len(calls), "validating", "file", False if quiet else None) as bar:
+        for i, res in ordered(counted(engine.map(validate_unit, calls), bar)):
+            results[i] = res
+    reports, errors = [], []
+    for path, res in zip(inputs, results):
+        show_warnings(res.get("warnings", ()))
+        _subjects(res["reports"], Path(path))
+        reports += res["reports"]
+        reads += [(Path(p), what) for p, what in res.get("reads", ()) if (Path(p), what) not in reads]
+        if res["error"] is not None:
+            err = BrdftabError(_as_given(res["error"], path))
+            err.exit_code = res["code"]
+            errors.append((shown(path), err))
+    return reports, errors
+
+
+def _as_given(text: str, path: Path) -> str:
+    """A worker's message about ``path`` (sent absolute) with the path as the user gave it."""
+    head = shown(Path(path).absolute())
+    return shown(path) + text[len(head):] if text.startswith(head) else text
+
+
+def _subjects(reports, path: Path) -> None:
+    """Report subjects name the input as the user gave it (a worker was given its absolute path)."""
+    for r in reports:
+        r.subject = _as_given(r.subject, path)

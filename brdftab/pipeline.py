@@ -112,9 +112,7 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
 
     _check_memory(spec, planned)
 
-    provenance = {"spec_sha256": spec.sha256, "spec_file": spec.path.name}
-    if spec.description:
-        provenance["comment"] = spec.description
+    provenance = spec.provenance  # the spec file, its description, a sweep member's values
     config = {k: v for k, v in spec.validation.items() if k != "allow_invalid"}
     layers = [config, checks or {}]
     allow = spec.validation.get("allow_invalid", False) if allow_invalid is None else allow_invalid
@@ -372,7 +370,7 @@ def validate(spec: Spec, checks: dict | None = None, progress: bool | None = Non
     ``checks`` (command-line layer). Returns one :class:`~brdftab.checks.Report` per distinct
     stored BRDF."""
     config = {k: v for k, v in spec.validation.items() if k != "allow_invalid"}
-    provenance = {"spec_sha256": spec.sha256, "spec_file": spec.path.name}
+    provenance = spec.provenance
     reports = {}
     planned = plan(spec)
     _check_memory(spec, planned)

@@ -58,7 +58,7 @@ else:  # pragma: no cover - Python 3.10
 
 __all__ = ["Spec", "Output", "load_spec", "build_model", "model_inputs"]
 
-TOP_KEYS = ("description", "model", "grid", "output", "validation")
+TOP_KEYS = ("description", "model", "grid", "output", "validation", "sweep")
 
 
 @dataclass
@@ -92,6 +92,22 @@ class Spec:
     validation: dict
     description: str = ""
     raw: dict = field(default_factory=dict)
+    #: For a member of a ``[sweep]`` (:mod:`brdftab.sweep`): ``{"member": index, "values": {key: value}}``.
+    sweep: dict | None = None
+
+    @property
+    def provenance(self) -> dict:
+        """What a file written from this spec records of it: the spec file's name and SHA-256,
+        its description, and for a sweep member its index and swept values (JSON)."""
+        import json
+
+        out = {"spec_sha256": self.sha256, "spec_file": self.path.name}
+        if self.description:
+            out["comment"] = self.description
+        if self.sweep is not None:
+            out["sweep_member"] = int(self.sweep["member"])
+            out["sweep_values"] = json.dumps(self.sweep["values"], ensure_ascii=False)
+        return out
 
     @property
     def inputs(self) -> list:
@@ -123,7 +139,15 @@ def model_inputs(model) -> list:
 
 
 def load_spec(path) -> Spec:
-    """Read and validate the spec file at ``path``."""
+    """Read and validate the spec file at ``path`` (a spec with a ``[sweep]`` table describes
+    several: :func:`brdftab.sweep.load` reads those)."""
+    path = Path(path)
+    raw, sha = read_spec(path)
+    return parse_spec(raw, path, sha)
+
+
+def read_spec(path) -> tuple:
+    """``(raw mapping, SHA-256 of the file)`` of the TOML spec file at ``path``, not yet validated."""
     path = Path(path)
     try:
         data = path.read_bytes()
@@ -143,7 +167,7 @@ def load_spec(path) -> Spec:
         raise SpecError(f"{path}: values nested too deeply (at most {MAX_DEPTH} levels)") from None
     if _depth(raw) > MAX_DEPTH:
         raise SpecError(f"{path}: values nested too deeply (at most {MAX_DEPTH} levels)")
-    return parse_spec(raw, path, hashlib.sha256(data).hexdigest())
+    return raw, hashlib.sha256(data).hexdigest()
 
 
 #: Deepest nesting of tables and arrays a spec may have (models nest a few levels at most).
@@ -178,6 +202,11 @@ def parse_spec(raw: dict, path: Path, sha256: str = "") -> Spec:
     for key in raw:
         if key not in TOP_KEYS:
             raise _fail(path, key, f"unknown top-level key{suggest(key, TOP_KEYS)}; valid: {', '.join(TOP_KEYS)}")
+    if "sweep" in raw:
+        from .sweep import count
+
+        raise _fail(path, "sweep", f"this spec describes {count(raw, path)} tables (a [sweep]): tabulate or validate "
+                    "it (brdftab.sweep.load reads its members); it does not stand for one model")
     description = raw.get("description", "")
     if not isinstance(description, str):
         raise _fail(path, "description", "expected a string")

@@ -435,9 +435,14 @@ def run_checks(brdf, config=None, *, only=None, wavelengths=None, reference=None
 
 
 class ChecksFailed(ValidationError):
-    """A BRDF failed a check at level ``error`` before export (the CLI exits with code 1)."""
+    """A BRDF failed a check at level ``error`` before export (the CLI exits with code 1);
+    ``report`` is the :class:`Report` that refused it."""
 
     exit_code = 1
+
+    def __init__(self, message: str = "", report: Report | None = None):
+        super().__init__(message)
+        self.report = report
 
 
 def stamp(table, report: Report) -> None:
@@ -467,7 +472,8 @@ def guard(source, config=None, *, allow_invalid: bool = False, what: str = "", *
         stamp(source, report)
     if not report.passed and not allow_invalid:
         where = f" {what}" if what else ""
-        raise ChecksFailed(f"refusing to export{where}: {report.summary()} (pass --allow-invalid to write anyway)")
+        raise ChecksFailed(f"refusing to export{where}: {report.summary()} (pass --allow-invalid to write anyway)",
+                           report)
     return report
 
 
@@ -493,7 +499,8 @@ def unstorable_report(exc, config=None, *, allow_invalid: bool = False, what: st
         report.outcomes.append(out)
     if not report.passed and not allow_invalid:
         where = f" {what}" if what else ""
-        raise ChecksFailed(f"refusing to export{where}: {report.summary()} (pass --allow-invalid to write anyway)")
+        raise ChecksFailed(f"refusing to export{where}: {report.summary()} (pass --allow-invalid to write anyway)",
+                           report)
     return report
 
 

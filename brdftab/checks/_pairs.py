@@ -74,6 +74,11 @@ def sample_pairs(n: int, seed: int = 0, scales=SCALES):
     return wi, wo, weight
 
 
+#: Rows summed together by one compiled pass: the statistics are sums of per-block sums in block
+#: order, the same figures whatever the number of threads (a serial run and a worker process agree).
+BLOCK = 1 << 15
+
+
 def asymmetry(f1, f2, weight=None, floor: float = 1e-9) -> dict:
     """Statistics of ``|f1 − f2|`` relative to their mean, over pairs ``[N, C]``.
 
@@ -117,12 +122,18 @@ def asymmetry_blocks(rows, floor: float = 1e-9, weighted: bool = True) -> dict:
     for f1, f2, w, locate in prepared():
         nc = f1.shape[1]
 
-        def stats(lo, hi):
-            a, b = np.zeros(nc), np.zeros(nc)
-            r = _stats_pass(f1[lo:hi], f2[lo:hi], thresh, w[lo:hi] if w.size else w, a, b)
-            return r + (a, b, lo)
+        n_rows = f1.shape[0]
 
-        parts = parallel_rows(stats, f1.shape[0])
+        def stats(b0, b1):  # blocks [b0, b1): the same partial sums on any number of threads
+            out = []
+            for lo in range(b0 * BLOCK, min(b1 * BLOCK, n_rows), BLOCK):
+                hi = min(lo + BLOCK, n_rows)
+                a, b = np.zeros(nc), np.zeros(nc)
+                r = _stats_pass(f1[lo:hi], f2[lo:hi], thresh, w[lo:hi] if w.size else w, a, b)
+                out.append(r + (a, b, lo))
+            return out
+
+        parts = [p for chunk in parallel_rows(stats, -(-n_rows // BLOCK), min_rows=2) for p in chunk]
         n_sig += sum(int(p[0]) for p in parts)
         sumsq += sum(p[3] for p in parts)
         for p in parts:  # ranges in order: the first largest stays
@@ -132,7 +143,7 @@ def asymmetry_blocks(rows, floor: float = 1e-9, weighted: bool = True) -> dict:
                 worst = locate(row) if locate is not None else offset + row
         num = sum((p[4] for p in parts), np.zeros(nc) if num is None else num)
         den = sum((p[5] for p in parts), np.zeros(nc) if den is None else den)
-        offset += f1.shape[0]
+        offset += n_rows
     out = {"compared": n - excluded, "excluded": excluded, "max_relative": 0.0, "rms_relative": 0.0,
            "worst": None, "weighted": None}
     if n_sig:
