@@ -534,7 +534,12 @@ class Table(BRDF):
         path of a table evaluated slab by slab from disk)."""
         idx, outside = self.grid.locate(wi, wo, isotropic=self.isotropic)
         if self._slab_mode():
-            out = self._out_of_core().interpolate(idx)
+            lo, hi = _slab_rows(self, idx[0])
+            per_row = self.grid.size // self.shape[0] * self.shape[-1] * (self._var.dtype.itemsize + 8 * 3)
+            if getattr(self, "_ooc", None) is None and (hi - lo) * per_row <= memory_budget() // 2:
+                out = _slab_eval(self, wi, wo, lo, hi)  # few rows: read them, no scratch
+            else:
+                out = self._out_of_core().interpolate(idx)
         else:
             values, valid = self._interp_data()
             fill = _nearest_fill(values, lambda: _data_nodes(self.grid, values, valid), self.grid.axes)
@@ -850,6 +855,32 @@ class OutOfCore:
         for f in (self.values, self.ok, self.missing):
             if f is not None:
                 f.close()
+
+
+def _slab_rows(table, i0):
+    """``(lo, hi)``: the rows of the first axis the queries at first-axis indices ``i0`` need,
+    with the margin their horizon ghosts need."""
+    n = len(table.grid.axes[0])
+    finite = np.isfinite(i0)
+    lo = int(max(0, np.floor(i0[finite].min()) - SLAB_MARGIN)) if finite.any() else 0
+    hi = int(min(n, np.ceil(i0[finite].max()) + SLAB_MARGIN + 1)) if finite.any() else min(n, 1)
+    return lo, hi
+
+
+def _slab_eval(table, wi, wo, lo, hi):
+    """Evaluate a table that is not loaded from the slab ``lo:hi`` of its first axis
+    (:func:`_slab_rows`), read from disk: queries that need few rows of a huge table."""
+    slab = table._read(table._var[lo:hi])
+    grid = table.grid.sliced(lo, hi)
+    miss = _missing_mask(slab, table._var.attrs)
+    above = grid.node_above_horizon()
+    values, ok = _horizon_ghosts(slab, above, grid, miss) if not above.all() else (slab, above)
+    valid = np.broadcast_to(ok[..., None], values.shape)
+    if miss is not None:
+        valid = valid & ~miss
+    idx, _ = grid.locate(wi, wo, isotropic=table.isotropic)
+    return _multilinear(values, idx, grid.axes, None if valid.all() else valid,
+                        fill=_nearest_fill(values, lambda: _data_nodes(grid, values, valid), grid.axes))
 
 
 def _data_nodes(grid, values, valid):
