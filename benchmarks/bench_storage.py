@@ -11,7 +11,8 @@ Two tables (values computed once, float64):
 * **aniso grey**: GGX αx 0.2, αy 0.4, dielectric Fresnel (n 1.5) on an anisotropic
   Rusinkiewicz grid 45 × 90 × 45 × 90 (θh × φh × θd × φd; 16.4 M samples, 131 MB).
 
-For each storage (netCDF as ``write_netcdf`` writes it, level 4; zarr with the compressors of
+For each storage (netCDF as ``write_netcdf`` writes it, at the zlib levels of ``--nc-levels`` and
+chunks of ``--nc-chunks`` MiB; zarr with the compressors of
 :data:`brdftab.formats.zarr.CODECS` at the levels of ``--codecs`` and chunks of ``--chunks``
 MiB, shape ``(1,…,s, whole trailing axes)``), float64 and float32:
 
@@ -41,6 +42,7 @@ import numpy as np
 
 import brdftab
 from _timing import GOLD, hemisphere_pairs  # benchmarks/ is on sys.path when run as a script
+from brdftab.formats import netcdf as nc_format
 from brdftab.formats import zarr as zarr_format
 from brdftab.grids import RusinkiewiczGrid, merl_grid
 
@@ -115,7 +117,9 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true", help="a 45 x 45 x 90 RGB table only, fewer variants")
     ap.add_argument("--dtype", nargs="+", default=["float64", "float32"])
     ap.add_argument("--chunks", nargs="+", type=int, default=[1, 4, 16], help="zarr chunk sizes [MiB]")
-    ap.add_argument("--codecs", nargs="+", default=["blosc-zstd:5", "blosc-lz4:5", "zstd:1", "zstd:3", "zstd:5",
+    ap.add_argument("--nc-chunks", nargs="+", type=int, default=[2], help="netCDF chunk sizes [MiB]")
+    ap.add_argument("--nc-levels", nargs="+", type=int, default=[4], help="netCDF zlib levels")
+    ap.add_argument("--codecs", nargs="*", default=["blosc-zstd:5", "blosc-lz4:5", "zstd:1", "zstd:3", "zstd:5",
                                                     "gzip:4"],
                     help="zarr compressors as CODEC:LEVEL (CODEC one of brdftab.formats.zarr.CODECS)")
     args = ap.parse_args(argv)
@@ -131,7 +135,18 @@ def main(argv=None):
         for dtype in args.dtype:
             folder = Path(tempfile.mkdtemp(dir=args.dir))
             try:
-                measure(table, folder, f"netCDF zlib 4, {dtype}", ".nc", args.repeat, {"dtype": dtype})
+                for level in args.nc_levels:
+                    for mib in args.nc_chunks:
+                        saved_nc = nc_format.CHUNK_BYTES
+
+                        def setup_nc(mib=mib):
+                            nc_format.CHUNK_BYTES = mib << 20
+
+                        try:
+                            measure(table, folder, f"netCDF zlib {level}, {mib} MiB, {dtype}", ".nc", args.repeat,
+                                    {"dtype": dtype, "complevel": level}, setup_nc)
+                        finally:
+                            nc_format.CHUNK_BYTES = saved_nc
                 for codec, level in variants:
                     for mib in chunk_sizes:
                         saved = (zarr_format.CODEC, zarr_format.CHUNK_BYTES)

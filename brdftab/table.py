@@ -712,7 +712,7 @@ _SHELLS: dict = {}
 SLAB_MARGIN = 4
 #: Rows of the first axis on each side of an evaluation window read with it (the cells of its
 #: queries and the nearest data nodes of cells without any).
-WINDOW_MARGIN = 2
+WINDOW_MARGIN = 1
 
 
 def scratch_dir() -> str | None:
@@ -728,7 +728,7 @@ class OutOfCore:
     and the declared missing samples, in anonymous temporary files (deleted when closed, or
     when the process ends however it ends). The ghosts along the other axes come from each
     window alone; those along the first axis (θh, θi: the last ghost axis) in a second sweep over
-    the scratch with three rows of margin, the rows it changes written back behind it.
+    the scratch, block by block of a row's nodes over all rows (they are independent per node).
     Evaluation sorts the queries by their cell along the first axis and interpolates them window
     by window, each window (plus :data:`WINDOW_MARGIN` rows) read back: one pass over the
     scratch per call, memory bounded by the budget. The result equals the whole-table
@@ -752,8 +752,9 @@ class OutOfCore:
         inner = tuple(a for a in present if a != first)
         try:
             # pass 1: read as stored, ghosts along the other axes (row by row independent)
-            per_row = self.row * (table._var.dtype.itemsize + 8 + 1) + self.nodes * 8
-            step = max(1, budget // per_row)
+            # per row: as stored, in float64, the missing mask; node masks and the ghosts' indices
+            per_row = self.row * (table._var.dtype.itemsize + 8 + 1) + self.nodes * 48
+            step = max(1, (budget // 2) // per_row)
             for a in range(0, n0, step):
                 b = min(n0, a + step)
                 slab = table._read(table._var[a:b])
@@ -774,35 +775,44 @@ class OutOfCore:
         except BaseException:
             self.close()
             raise
-        self.window = max(1, budget // (self.row * (8 + 1) * 4) - 2 * WINDOW_MARGIN - 1)
+        # a window: its rows of values (8 bytes a sample) and node masks, in half the budget
+        self.window = max(1, (budget // 2) // (self.row * 10) - 1 - 2 * WINDOW_MARGIN)
 
     def _first_axis_pass(self, first, budget) -> None:
-        """Ghosts along the first axis, window by window of the scratch with three rows of
-        margin each side, written into the window in place; each window's rows are written back
-        once the next window has the rows before it as they were."""
-        per_row = self.row * 8 + self.nodes * 8  # the window's values, its node masks
-        step = max(1, budget // per_row - 6)
-        kept = None  # (values, ok) as pass 1 left them, of the rows just before the window
-        for a in range(0, self.n0, step):
-            b = min(self.n0, a + step)
-            lo, hi = max(0, a - 3), min(self.n0, b + 3)
-            vals = np.empty((hi - lo,) + self.shape[1:])
-            ok = np.empty((hi - lo,) + self.shape[1:-1], np.bool_)
-            k = 0
-            if kept is not None:
-                k = kept[0].shape[0]
-                vals[:k], ok[:k] = kept
-            for f, out, item in ((self.values, vals, 8), (self.ok, ok, 1)):
-                per = math.prod(out.shape[1:]) * item
-                f.seek((lo + k) * per)
-                f.readinto(memoryview(out[k:].reshape(-1).view(np.uint8)))
-            c = max(0, b - 3) - lo  # the next window's first rows (its margin), as they were
-            kept = (vals[c:b - lo].copy(), ok[c:b - lo].copy())
-            if ok[a - lo:b - lo].all():
-                continue  # nothing below the horizon without a ghost: these rows stay
-            miss = self._missing(lo, hi)
-            _, ok = _horizon_ghosts(vals, ok, self.grid.sliced(lo, hi), miss, axes=(first,), inplace=True)
-            self._write(a, vals[a - lo:b - lo], ok[a - lo:b - lo])
+        """Ghosts along the first axis: independent for every node of a row, so made over all
+        rows for one range of the row's nodes at a time (a column block: every row's segment of
+        it read from the scratch, ghosted in place and written back)."""
+        from types import SimpleNamespace
+
+        n0, nodes, c = self.n0, self.nodes, self.shape[-1]
+        # per node of a column block: its values over the rows, the corner values and node masks
+        # and indices the ghost pass makes
+        per_node = n0 * (c * 8 * 3 + 48)
+        cols = max(1, (budget // 2) // per_node)
+        columns = SimpleNamespace(dims=(first, "node"), axes=(self.grid.axes[0], None))
+        files = [(self.values, 8 * c, np.float64, (c,)), (self.ok, 1, np.bool_, ())]
+        if self.missing is not None:
+            files.append((self.missing, c, np.bool_, (c,)))
+        for c0 in range(0, nodes, cols):
+            c1 = min(nodes, c0 + cols)
+            parts = []
+            for f, item, dtype, tail in files:
+                out = np.empty((n0, c1 - c0) + tail, dtype)
+                for r in range(n0):
+                    f.seek((r * nodes + c0) * item)
+                    f.readinto(memoryview(out[r].reshape(-1).view(np.uint8)))
+                parts.append(out)
+            vals, ok = parts[0], parts[1]
+            if ok.all():
+                continue
+            before = ok.copy()
+            _, ok = _horizon_ghosts(vals, ok, columns, parts[2] if len(parts) > 2 else None, axes=(first,),
+                                    inplace=True)
+            for r in np.flatnonzero((ok != before).any(axis=1)):  # rows that got ghosts
+                self.values.seek((r * nodes + c0) * 8 * c)
+                self.values.write(np.ascontiguousarray(vals[r]).tobytes())
+                self.ok.seek(r * nodes + c0)
+                self.ok.write(np.ascontiguousarray(ok[r]).tobytes())
 
     def _read(self, f, lo, hi, shape, dtype, item):
         out = np.empty((hi - lo,) + shape, dtype)
@@ -817,12 +827,6 @@ class OutOfCore:
 
     def _missing(self, lo, hi):
         return None if self.missing is None else self._read(self.missing, lo, hi, self.shape[1:], np.bool_, 1)
-
-    def _write(self, a, vals, ok) -> None:
-        self.values.seek(a * self.row * 8)
-        self.values.write(np.ascontiguousarray(vals, np.float64).tobytes())
-        self.ok.seek(a * self.nodes)
-        self.ok.write(np.ascontiguousarray(ok, np.bool_).tobytes())
 
     def interpolate(self, idx) -> np.ndarray:
         """Values ``[M, C]`` at fractional indices ``idx`` (one array per axis, as
