@@ -227,3 +227,31 @@ def test_scratch_ghosts_equal_the_whole_table_ghosts_for_any_window(tmp_path, mo
     got_vals, got_ok = ooc._rows(0, t.shape[0])
     assert np.array_equal(got_ok, ok) and np.array_equal(got_vals, vals)
     ooc.close()
+
+
+def test_a_streamed_zarr_store_holds_the_same_table(tmp_path, monkeypatch):
+    (tmp_path / "a").mkdir()
+    (tmp_path / "b").mkdir()
+    whole = _run(tmp_path / "a", monkeypatch, None, name="t.nc")
+    streamed = _run(tmp_path / "b", monkeypatch, "1M", name="t.zarr")
+    a, b = brdftab.open(whole.written[0]), brdftab.open(streamed.written[0])
+    assert np.array_equal(a.values, b.values)
+    assert b.ds.attrs["validation_passed"] == 1 and "albedo" in b.ds
+    np.testing.assert_allclose(b.ds["albedo"].values, a.ds["albedo"].values, rtol=1e-9)
+
+
+def test_gonio_reciprocity_over_budget_is_skipped_saying_so(tmp_path, monkeypatch):
+    from brdftab.models import create
+    from brdftab.table import tabulate
+
+    deg = np.radians
+    grid = SphericalGrid(deg([10, 30, 50]), deg([0, 90, 180, 270]), deg([10, 30, 50]), deg([0, 90, 180, 270]))
+    path = tmp_path / "g.nc"
+    brdftab.save(tabulate(create("lambert", albedo=0.5), grid, progress=False), path)
+    loaded = brdftab.checks.run_checks(brdftab.open(path), only=["reciprocity"]).get("reciprocity")
+    assert loaded.status == "pass" and loaded.data["mode"] == "nodes"
+    monkeypatch.setenv("BRDFTAB_MEMORY", "1M")
+    for where in ("brdftab.checks._tables.over_budget", "brdftab.checks.reciprocity.over_budget"):
+        monkeypatch.setattr(where, lambda t: True)  # (a table this small never is)
+    out = brdftab.checks.run_checks(brdftab.open(path), only=["reciprocity"]).get("reciprocity")
+    assert out.status == "skip" and "over the memory budget" in out.detail and "--memory" in out.detail
