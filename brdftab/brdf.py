@@ -117,6 +117,10 @@ class BRDF:
         """Default wavelengths [nm] of a spectral BRDF (None otherwise)."""
         return self.layout.wavelengths
 
+    #: Pairs per evaluation call a caller should batch (None: :data:`EVAL_CHUNK`): set by BRDFs
+    #: whose every call costs a pass over data on disk (a table over the memory budget).
+    eval_batch = None
+
     @property
     def spectral(self) -> bool:
         return self.layout.spectral
@@ -154,10 +158,12 @@ class BRDF:
             out[~finite] = np.nan
             with np.errstate(invalid="ignore"):
                 above = np.flatnonzero(finite & (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
-        # Bounded chunks keep the temporaries of long evaluations to a few tens of MB.
+        # Bounded chunks keep the temporaries of long evaluations to a few tens of MB (a BRDF
+        # whose every call costs a pass over its data takes larger ones: eval_batch).
+        step = self.eval_batch or EVAL_CHUNK
         with np.errstate(all="ignore"):
-            for start in range(0, above.size, EVAL_CHUNK):
-                sel = above[start:start + EVAL_CHUNK]
+            for start in range(0, above.size, step):
+                sel = above[start:start + step]
                 if sel.size == wi.shape[0]:
                     sel = slice(None)
                 out[sel] = self._eval(wi[sel], wo[sel], lam, n)
