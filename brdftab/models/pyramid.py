@@ -540,13 +540,12 @@ def _root_or(r, top):
 
 
 @device
-def _ray_roots(wi, fr, a, psi, cf, c1, c2, top, roots):
+def _ray_roots(iz, fr, a, psi, cf, c1, c2, top, roots):
     """The cuts of one ray of :func:`_facet_rays` into ``roots[4]``; returns (q0, q1, q2, ⟨ωi, v⟩,
     v_z)."""
     cv = math.cos(psi) * c1 + math.sin(psi) * c2
     fz = fr[2, 2]
     vz = math.cos(psi) * fr[0, 2]
-    iz = wi[2]
     q0 = 2.0 * cf * fz - iz
     q1 = 2.0 * a * (cf * vz + cv * fz)
     q2 = a * a * (2.0 * cv * vz - iz)
@@ -565,82 +564,89 @@ def _facet_energy_rows(wi, kk, lam_i, r_i, frames, normals, alpha, g_form, n_who
     ``kk[P]``) given Λ(ωi) ``lam_i[P]`` and, for the traced G, r_k(ωi) ``r_i[P]``; the rule of
     :func:`_facet_rule` (``n_whole``/``n_cut`` azimuths, Gauss–Legendre ``gx``, ``gw`` on [0, 1],
     panel edges ``t_edges``), the walk table's escape parts for r_k(ωo)."""
+    roots = np.empty(4)
+    edges = np.empty(t_edges.shape[0] + 4)
+    for p in range(wi.shape[0]):
+        out[p] = _facet_energy1(wi[p, 0], wi[p, 1], wi[p, 2], kk[p], lam_i[p], r_i[p], frames, normals, alpha, g_form,
+                                n_whole, n_cut, gx, gw, t_edges, rot_c, rot_s, theta, phi, esc_perm, flat, roots, edges)
+
+
+@device
+def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_whole, n_cut, gx, gw, t_edges, rot_c,
+                   rot_s, theta, phi, esc_perm, flat, roots, edges):
+    """One energy of :func:`_facet_energy_rows`: incidence (``w0``, ``w1``, ``w2``), facet ``k``
+    (``roots[4]``, ``edges[len(t_edges) + 4]``: scratch)."""
     a = alpha
     ne = t_edges.shape[0]
     top = t_edges[ne - 1]
-    roots = np.empty(4)
-    edges = np.empty(ne + 4)
-    for p in range(wi.shape[0]):
-        k = kk[p]
-        fr = frames[k]
-        w = wi[p]
-        cf = w[0] * fr[2, 0] + w[1] * fr[2, 1] + w[2] * fr[2, 2]
-        c1 = w[0] * fr[0, 0] + w[1] * fr[0, 1] + w[2] * fr[0, 2]
-        c2 = w[0] * fr[1, 0] + w[1] * fr[1, 1] + w[2] * fr[1, 2]
-        n_psi = n_whole
-        for r in range(n_whole):
-            psi = 2.0 * np.pi * (r + 0.5) / n_whole
-            _ray_roots(w, fr, a, psi, cf, c1, c2, top, roots)
-            if roots[0] < top or roots[2] < top or roots[3] < top:
-                n_psi = n_cut
-                break
-        g1i = 1.0 / (1.0 + lam_i[p])
-        acc = 0.0
-        for r in range(n_psi):
-            psi = 2.0 * np.pi * (r + 0.5) / n_psi
-            q0, q1, q2, cv, vz = _ray_roots(w, fr, a, psi, cf, c1, c2, top, roots)
-            for j in range(ne):
-                edges[j] = t_edges[j]
-            for j in range(4):
-                edges[ne + j] = roots[j]
-            edges.sort()
-            cp, sp = math.cos(psi), math.sin(psi)
-            for j in range(ne + 3):
-                lo, hi = edges[j], edges[j + 1]
-                mid = 0.5 * (lo + hi)
-                if not (hi > lo and cf + a * mid * cv > 0.0 and fr[2, 2] + a * mid * vz > 0.0
-                        and q0 + (q1 + q2 * mid) * mid > 0.0):
+    fr = frames[k]
+    cf = w0 * fr[2, 0] + w1 * fr[2, 1] + w2 * fr[2, 2]
+    c1 = w0 * fr[0, 0] + w1 * fr[0, 1] + w2 * fr[0, 2]
+    c2 = w0 * fr[1, 0] + w1 * fr[1, 1] + w2 * fr[1, 2]
+    n_psi = n_whole
+    for r in range(n_whole):
+        psi = 2.0 * np.pi * (r + 0.5) / n_whole
+        _ray_roots(w2, fr, a, psi, cf, c1, c2, top, roots)
+        if roots[0] < top or roots[2] < top or roots[3] < top:
+            n_psi = n_cut
+            break
+    g1i = 1.0 / (1.0 + lam_i)
+    acc = 0.0
+    for r in range(n_psi):
+        psi = 2.0 * np.pi * (r + 0.5) / n_psi
+        q0, q1, q2, cv, vz = _ray_roots(w2, fr, a, psi, cf, c1, c2, top, roots)
+        for j in range(ne):
+            edges[j] = t_edges[j]
+        for j in range(4):
+            edges[ne + j] = roots[j]
+        edges.sort()
+        cp, sp = math.cos(psi), math.sin(psi)
+        for j in range(ne + 3):
+            lo, hi = edges[j], edges[j + 1]
+            mid = 0.5 * (lo + hi)
+            if not (hi > lo and cf + a * mid * cv > 0.0 and fr[2, 2] + a * mid * vz > 0.0
+                    and q0 + (q1 + q2 * mid) * mid > 0.0):
+                continue
+            for g in range(gx.shape[0]):
+                t = lo + (hi - lo) * gx[g]
+                wt = (hi - lo) * gw[g]
+                rr = a * t
+                inv = 1.0 / math.sqrt(1.0 + rr * rr)
+                hx = (fr[2, 0] + rr * (cp * fr[0, 0] + sp * fr[1, 0])) * inv
+                hy = (fr[2, 1] + rr * (cp * fr[0, 1] + sp * fr[1, 1])) * inv
+                hz = (fr[2, 2] + rr * (cp * fr[0, 2] + sp * fr[1, 2])) * inv
+                c = hx * w0 + hy * w1 + hz * w2
+                ox = 2.0 * c * hx - w0
+                oy = 2.0 * c * hy - w1
+                oz = 2.0 * c * hz - w2
+                if not (c > 0.0 and oz > 1e-12):
                     continue
-                for g in range(gx.shape[0]):
-                    t = lo + (hi - lo) * gx[g]
-                    wt = (hi - lo) * gw[g]
-                    rr = a * t
-                    inv = 1.0 / math.sqrt(1.0 + rr * rr)
-                    hx = (fr[2, 0] + rr * (cp * fr[0, 0] + sp * fr[1, 0])) * inv
-                    hy = (fr[2, 1] + rr * (cp * fr[0, 1] + sp * fr[1, 1])) * inv
-                    hz = (fr[2, 2] + rr * (cp * fr[0, 2] + sp * fr[1, 2])) * inv
-                    c = hx * w[0] + hy * w[1] + hz * w[2]
-                    ox = 2.0 * c * hx - w[0]
-                    oy = 2.0 * c * hy - w[1]
-                    oz = 2.0 * c * hz - w[2]
-                    if not (c > 0.0 and oz > 1e-12):
-                        continue
-                    dwh = wt * (2.0 * np.pi / n_psi) * a * a * t * inv ** 3.0
-                    weight = 4.0 * c * dwh
-                    # own_facet at (ωi, ωo)
-                    bx, by, bz = w[0] + ox, w[1] + oy, w[2] + oz
-                    norm = math.sqrt(bx * bx + by * by + bz * bz)
-                    bx, by, bz = bx / norm, by / norm, bz / norm
-                    if not bz > 0.0:
-                        continue
-                    lx = fr[0, 0] * bx + fr[0, 1] * by + fr[0, 2] * bz
-                    ly = fr[1, 0] * bx + fr[1, 1] * by + fr[1, 2] * bz
-                    lz = fr[2, 0] * bx + fr[2, 1] * by + fr[2, 2] * bz
-                    dk = _beckmann1(lx, ly, lz, a) * FACET_WEIGHT
-                    area_o = _projected_area1(ox, oy, oz, normals, a)
-                    if g_form == _G_TRACED:
-                        g1o = min(1.0, oz / area_o) if oz > 0.0 else 0.0
-                        r_o = ratio_one(rot_c * ox + rot_s * oy, rot_c * oy - rot_s * ox, oz, k, theta, phi,
-                                        esc_perm, flat)
-                        gg = min(g1i * g1o * math.sqrt(r_i[p] * r_o), min(g1i, g1o))
+                dwh = wt * (2.0 * np.pi / n_psi) * a * a * t * inv ** 3.0
+                weight = 4.0 * c * dwh
+                # own_facet at (ωi, ωo)
+                bx, by, bz = w0 + ox, w1 + oy, w2 + oz
+                norm = math.sqrt(bx * bx + by * by + bz * bz)
+                bx, by, bz = bx / norm, by / norm, bz / norm
+                if not bz > 0.0:
+                    continue
+                lx = fr[0, 0] * bx + fr[0, 1] * by + fr[0, 2] * bz
+                ly = fr[1, 0] * bx + fr[1, 1] * by + fr[1, 2] * bz
+                lz = fr[2, 0] * bx + fr[2, 1] * by + fr[2, 2] * bz
+                dk = _beckmann1(lx, ly, lz, a) * FACET_WEIGHT
+                area_o = _projected_area1(ox, oy, oz, normals, a)
+                if g_form == _G_TRACED:
+                    g1o = min(1.0, oz / area_o) if oz > 0.0 else 0.0
+                    r_o = ratio_one(rot_c * ox + rot_s * oy, rot_c * oy - rot_s * ox, oz, k, theta, phi,
+                                    esc_perm, flat)
+                    gg = min(g1i * g1o * math.sqrt(r_i * r_o), min(g1i, g1o))
+                else:
+                    lam_o = max(area_o / oz - 1.0, 0.0) if oz > 0.0 else math.inf
+                    if g_form == _G_CORRELATED:
+                        gg = 1.0 / (1.0 + lam_i + lam_o)
                     else:
-                        lam_o = max(area_o / oz - 1.0, 0.0) if oz > 0.0 else math.inf
-                        if g_form == _G_CORRELATED:
-                            gg = 1.0 / (1.0 + lam_i[p] + lam_o)
-                        else:
-                            gg = 1.0 / ((1.0 + lam_i[p]) * (1.0 + lam_o))
-                    acc += dk * gg / (4.0 * w[2]) * weight
-        out[p] = acc
+                        gg = 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
+                acc += dk * gg / (4.0 * w2) * weight
+    return acc
 
 
 @device
@@ -965,6 +971,66 @@ def _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front) -> _Walk:
                  in_u, in_prob, in_cosines, p_first, first_cont, np.where(front, 0.0, p_first), in_faces0)
 
 
+@device
+def _branch(dx, dy, dz, mass, code, depth, F, alpha, depth_t, op, cell, w00, w01, w10, w11, phi, perm, esc_parts,
+            hit_parts, cd, hit_w, split, p_hit, w_hit):
+    """One state of :func:`_traced_walk`: the ray travelling along (``dx``, ``dy``, ``dz``) after
+    bounce ``depth`` on the face sequence ``code`` with probability ``mass``, the incidence
+    direction's cell of the walk table (:func:`~brdftab.models.pyramid_walk.cell_of`). Returns
+    (escaping probability, continuing probability, whether no face can be hit) and fills
+    ``p_hit[4]`` (the branch to each face) and ``cd[4]`` (⟨d, f_j⟩); ``hit_w``, ``split``,
+    ``w_hit``: scratch [4]."""
+    tot = 0.0
+    for j in range(4):
+        cd[j] = dx * F[j, 0] + dy * F[j, 1] + dz * F[j, 2]
+        hit_w[j] = FACET_WEIGHT * _visible_area1(-cd[j], alpha) if cd[j] < 0.0 else 0.0
+        tot += hit_w[j]
+    none = not tot > 0.0
+    if dz > 0.0:
+        g1 = 1.0 if none else min(dz / _projected_area1(dx, dy, dz, F, alpha), 1.0)
+    else:
+        g1 = 0.0
+    for j in range(4):
+        split[j] = 0.0 if none else hit_w[j] / tot
+        p_hit[j] = (1.0 - g1) * split[j]
+    p_esc = g1
+    if depth <= depth_t:
+        w_esc = p_esc * ratio_in_cell(op, cell, w00, w01, w10, w11, (4 ** depth - 4) // 3 + code, phi, perm,
+                                      esc_parts)
+        if depth < depth_t:
+            s_hit = 0.0
+            for j in range(4):
+                w_hit[j] = p_hit[j] * ratio_in_cell(op, cell, w00, w01, w10, w11,
+                                                    (4 ** (depth + 1) - 4) // 3 + 4 * code + j, phi, perm, hit_parts)
+                s_hit += w_hit[j]
+            t_tot = w_esc + s_hit
+            if t_tot > 0.0:
+                p_esc = w_esc / t_tot
+                for j in range(4):
+                    p_hit[j] = w_hit[j] / t_tot
+        else:
+            p_esc = p_esc if none else min(w_esc, 1.0)
+            for j in range(4):
+                p_hit[j] = (1.0 - p_esc) * split[j]
+    esc = mass * p_esc
+    cont = mass - esc
+    if depth == 1 and cont <= 1e-9 * mass and not none:
+        # the first hit goes on with what its facet's lobe leaves (_share): the hit split
+        ssum = 0.0
+        for j in range(4):
+            ssum += p_hit[j]
+        if ssum <= 0.0:
+            for j in range(4):
+                p_hit[j] = split[j]
+        ssum = 0.0
+        for j in range(4):
+            ssum += p_hit[j]
+        for j in range(4):
+            p_hit[j] = p_hit[j] / ssum
+        cont = mass
+    return esc, cont, none
+
+
 @kernel
 def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, esc_parts, hit_parts, F, alpha, mb,
                       depth_t, n_ex, n_in, first_cont, ex_depth, ex_dirs, ex_prob, ex_code, ex_faces, ex_cos, in_prob,
@@ -1018,58 +1084,12 @@ def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, 
         for depth in range(1, mb + 1):
             nn = 0
             for i in range(ns):
-                dz = sd[i, 2]
-                tot = 0.0
-                for j in range(4):
-                    cd[j] = sd[i, 0] * F[j, 0] + sd[i, 1] * F[j, 1] + sd[i, 2] * F[j, 2]
-                    hit_w[j] = FACET_WEIGHT * _visible_area1(-cd[j], alpha) if cd[j] < 0.0 else 0.0
-                    tot += hit_w[j]
-                none = not tot > 0.0
-                if dz > 0.0:
-                    g1 = 1.0 if none else min(dz / _projected_area1(sd[i, 0], sd[i, 1], dz, F, alpha), 1.0)
-                else:
-                    g1 = 0.0
-                for j in range(4):
-                    split[j] = 0.0 if none else hit_w[j] / tot
-                    p_hit[j] = (1.0 - g1) * split[j]
-                p_esc = g1
                 code = sc[i]
-                if depth <= depth_t:
-                    w_esc = p_esc * ratio_in_cell(op, cell, w00, w01, w10, w11, (4 ** depth - 4) // 3 + code,
-                                                  phi, perm, esc_parts)
-                    if depth < depth_t:
-                        s_hit = 0.0
-                        for j in range(4):
-                            w_hit[j] = p_hit[j] * ratio_in_cell(op, cell, w00, w01, w10, w11,
-                                                                (4 ** (depth + 1) - 4) // 3 + 4 * code + j, phi, perm,
-                                                                hit_parts)
-                            s_hit += w_hit[j]
-                        t_tot = w_esc + s_hit
-                        if t_tot > 0.0:
-                            p_esc = w_esc / t_tot
-                            for j in range(4):
-                                p_hit[j] = w_hit[j] / t_tot
-                    else:
-                        p_esc = p_esc if none else min(w_esc, 1.0)
-                        for j in range(4):
-                            p_hit[j] = (1.0 - p_esc) * split[j]
                 mass = sm[i]
-                esc = mass * p_esc
-                cont = mass - esc
+                esc, cont, none = _branch(sd[i, 0], sd[i, 1], sd[i, 2], mass, code, depth, F, alpha, depth_t, op, cell,
+                                          w00, w01, w10, w11, phi, perm, esc_parts, hit_parts, cd, hit_w, split, p_hit,
+                                          w_hit)
                 if depth == 1:
-                    if cont <= 1e-9 * mass and not none:
-                        ssum = 0.0
-                        for j in range(4):
-                            ssum += p_hit[j]
-                        if ssum <= 0.0:
-                            for j in range(4):
-                                p_hit[j] = split[j]
-                        ssum = 0.0
-                        for j in range(4):
-                            ssum += p_hit[j]
-                        for j in range(4):
-                            p_hit[j] = p_hit[j] / ssum
-                        cont = mass
                     first_cont[u, sf[i, 0]] = 0.0 if none else cont
                 if esc > MIN_PROBABILITY:
                     ex_depth[e + ne] = depth
@@ -1489,31 +1509,46 @@ def _traced_single_rows(wi, wo, ti, pi, to, po, frames, normals, alpha, theta, p
     ri = np.empty(4)
     ro = np.empty(4)
     for m in range(wi.shape[0]):
-        hx, hy, hz = wi[m, 0] + wo[m, 0], wi[m, 1] + wo[m, 1], wi[m, 2] + wo[m, 2]
-        norm = math.sqrt(hx * hx + hy * hy + hz * hz)
-        hx, hy, hz = hx / norm, hy / norm, hz / norm
-        cos_d[m] = 0.5 * norm
-        # G1 of both directions (0 at and below the horizon)
-        wz = wi[m, 2]
-        g1i = min(1.0, wz / _projected_area1(wi[m, 0], wi[m, 1], wz, normals, alpha)) if wz > 0.0 else 0.0
-        oz = wo[m, 2]
-        g1o = min(1.0, oz / _projected_area1(wo[m, 0], wo[m, 1], oz, normals, alpha)) if oz > 0.0 else 0.0
-        op, cell, w00, w01, w10, w11 = cell_of(ti[m], pi[m], theta, phi)
-        for k in range(4):
-            ri[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
-        op, cell, w00, w01, w10, w11 = cell_of(to[m], po[m], theta, phi)
-        for k in range(4):
-            ro[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
-        tot = 0.0
-        for k in range(4):
-            fr = frames[k]
-            lx = fr[0, 0] * hx + fr[0, 1] * hy + fr[0, 2] * hz
-            ly = fr[1, 0] * hx + fr[1, 1] * hy + fr[1, 2] * hz
-            lz = fr[2, 0] * hx + fr[2, 1] * hy + fr[2, 2] * hz
-            dk = _beckmann1(lx, ly, lz, alpha) * FACET_WEIGHT if hz > 0.0 else 0.0
-            g = min(g1i * g1o * math.sqrt(ri[k] * ro[k]), min(g1i, g1o))
-            tot += dk * g / (4.0 * wz)
-        base[m] = tot / oz
+        g1i = _g1(wi[m, 0], wi[m, 1], wi[m, 2], normals, alpha)
+        g1o = _g1(wo[m, 0], wo[m, 1], wo[m, 2], normals, alpha)
+        _escape_ratios(ti[m], pi[m], theta, phi, perm, flat, ri)
+        _escape_ratios(to[m], po[m], theta, phi, perm, flat, ro)
+        base[m], cos_d[m] = _traced_single1(wi[m, 0], wi[m, 1], wi[m, 2], wo[m, 0], wo[m, 1], wo[m, 2], g1i, g1o, ri,
+                                            ro, frames, alpha)
+
+
+@device
+def _g1(wx, wy, wz, normals, alpha):
+    """:meth:`PyramidDistribution.G1` of one direction (0 at and below the horizon)."""
+    return min(1.0, wz / _projected_area1(wx, wy, wz, normals, alpha)) if wz > 0.0 else 0.0
+
+
+@device
+def _escape_ratios(theta_w, phi_w, theta, phi, perm, flat, r):
+    """r_k of :meth:`SingleBounce.traced_ratio` for the four facets into ``r[4]``, at the table
+    angles ``theta_w``, ``phi_w`` of a direction (``flat``: the escape parts)."""
+    op, cell, w00, w01, w10, w11 = cell_of(theta_w, phi_w, theta, phi)
+    for k in range(4):
+        r[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
+
+
+@device
+def _traced_single1(wix, wiy, wiz, wox, woy, woz, g1i, g1o, ri, ro, frames, alpha):
+    """One pair of :func:`_traced_single_rows` given G1 and r_k of both directions: (Σ_k f_k
+    cosθo / cosθo, cos_d)."""
+    hx, hy, hz = wix + wox, wiy + woy, wiz + woz
+    norm = math.sqrt(hx * hx + hy * hy + hz * hz)
+    hx, hy, hz = hx / norm, hy / norm, hz / norm
+    tot = 0.0
+    for k in range(4):
+        fr = frames[k]
+        lx = fr[0, 0] * hx + fr[0, 1] * hy + fr[0, 2] * hz
+        ly = fr[1, 0] * hx + fr[1, 1] * hy + fr[1, 2] * hz
+        lz = fr[2, 0] * hx + fr[2, 1] * hy + fr[2, 2] * hz
+        dk = _beckmann1(lx, ly, lz, alpha) * FACET_WEIGHT if hz > 0.0 else 0.0
+        g = min(g1i * g1o * math.sqrt(ri[k] * ro[k]), min(g1i, g1o))
+        tot += dk * g / (4.0 * wiz)
+    return tot / woz, 0.5 * norm
 
 
 @kernel
