@@ -689,14 +689,17 @@ def _near_lobe_pairs(m, rng, n_per_exit=6):
 
 
 def test_compiled_evaluation_matches_numpy():
-    """The model with its compiled helpers (walk-table interpolation, visible areas, facet-lobe
-    energies, the traced walk) against its numpy code, to 1e-12 relative: random pairs, pairs
-    near the mirror direction and near every exit lobe, and the special rows (horizon, NaN,
-    non-unit); every walk, 1 to 3 bounces, φ0 ≠ 0, grey, RGB and spectral Fresnel. Bound 2e-12,
-    not 1e-12: numpy's exp and scipy's erf differ from libm's in the last digit, and the walk
-    continues from a facet with its first hits less what its lobe sends out (P_k − E_k, _share),
-    a difference that magnifies those digits where the lobe sends out most (up to 1.1e-12 seen
-    over 15 sets of pairs; the numpy code's own rounding there is of the same size)."""
+    """The model compiled against its numpy code, to 1e-12 relative: random pairs, pairs near the
+    mirror direction and near every exit lobe, and the special rows (horizon, NaN, non-unit);
+    every walk, 1 to 3 bounces, φ0 ≠ 0, grey, RGB and spectral Fresnel, the model and each of its
+    terms. With the traced walk a pair is one compiled loop (:meth:`BRDF.kernel`: the
+    single-bounce term, the walk along the sequences whose exit lobe reaches ωo, the facet
+    energies those need); the Smith walks compile their helpers (walk-table interpolation, visible
+    areas, facet-lobe energies). Bound 2e-12, not 1e-12: numpy's exp and scipy's erf differ from
+    libm's in the last digit, and the walk continues from a facet with its first hits less what
+    its lobe sends out (P_k − E_k, _share), a difference that magnifies those digits where the
+    lobe sends out most (up to 1.1e-12 seen over 15 sets of pairs; the numpy code's own rounding
+    there is of the same size)."""
     from _kernels import pairs
 
     from brdftab.brdf import numpy_reference
@@ -706,15 +709,19 @@ def test_compiled_evaluation_matches_numpy():
         wi, wo = pairs(i, n=1500)
         wi2, wo2 = _near_lobe_pairs(m, rng)
         wi, wo = np.concatenate([wi, wi2]), np.concatenate([wo, wo2])
-        got = m.eval(wi, wo, lam)
-        with numpy_reference():
-            ref = m.eval(wi, wo, lam)
-        assert np.array_equal(np.isnan(got), np.isnan(ref))
-        assert np.array_equal(got == 0, ref == 0)
-        ok = ~np.isnan(ref)
-        assert np.count_nonzero(ref[ok] > 0) > 150
-        rel = np.abs(got[ok] - ref[ok]) / np.maximum(np.abs(ref[ok]), 1e-300)
-        assert rel.max() <= 2e-12, (m.describe(), rel.max())
+        lam_r = m.layout.resolve(lam)
+        terms = [m] if m.multi is None else [m, m.single, m.multi]
+        for term in terms:
+            assert (term.kernel(lam_r, m.layout.n_out(lam_r)) is not None) == (m.walk == "traced"), term.describe()
+            got = term.eval(wi, wo, lam)
+            with numpy_reference():
+                ref = term.eval(wi, wo, lam)
+            assert np.array_equal(np.isnan(got), np.isnan(ref))
+            assert np.array_equal(got == 0, ref == 0)
+            ok = ~np.isnan(ref)
+            assert np.count_nonzero(ref[ok] > 0) > 150
+            rel = np.abs(got[ok] - ref[ok]) / np.maximum(np.abs(ref[ok]), 1e-300)
+            assert rel.max() <= 2e-12, (term.describe(), rel.max())
 
 
 def test_compiled_walk_table_interpolation_is_numpys():

@@ -1284,6 +1284,9 @@ class SingleBounce(_Term):
         f = self.fres.F(cos_d, lam, n)
         return base[:, None] * f if np.ndim(f) else np.repeat(base[:, None], n, axis=1)
 
+    def _kernel(self, lam, n):
+        return _pair_kernel(self.dist, self.fres, self.walk, 1, lam, n, True, False)
+
     def _traced_base(self, wi, wo):
         """Σ_k f_k cosθo / cosθo (no Fresnel) and cos_d of :meth:`facet_terms` with the traced
         walk's G, compiled (:func:`_traced_single_rows`; the table's angles from numpy)."""
@@ -1407,6 +1410,9 @@ class MultiBounce(_Term):
         single-bounce term (:func:`_share`)."""
         wi = np.asarray(wi, float).reshape(-1, 3)
         return _share(_run_walk(self.dist, wi, self.max_bounces, self.walk_name), self.single.facet_energy(wi))
+
+    def _kernel(self, lam, n):
+        return _pair_kernel(self.dist, self.fres, self.walk_name, self.max_bounces, lam, n, False, True)
 
     def lobes(self, wo, e, energy_grey, norm):
         """Grey f cosθo of each exit lobe at directions ``wo[M, 3]`` → [M, S]."""
@@ -1581,6 +1587,295 @@ def _exit_lobe_rows(wo, inv, starts, counts, e, norm, energy, cos_cut, beta, out
 
 
 # --------------------------------------------------------------------------------------------
+# The compiled evaluation: every term of one pair in one loop (BRDF.kernel)
+#
+# Per incidence direction (reused while consecutive pairs share it, as a grid's do): its cell of
+# the walk table, G1, Λ and r_k, and the face sequences its walk can take, by geometry alone
+# (a face j is a branch only where ⟨d, f_j⟩ < 0). Per pair: the single-bounce term, then the
+# sequences of two or more bounces whose exit lobe reaches ωo; the walk's probabilities are
+# computed only along the sequences a pair sees (each state once per incidence, with
+# :func:`_branch`, the compiled walk's arithmetic), and the facet energies of their first
+# facets (:func:`_facet_energy1`, the coarse rule) only when one is needed (:func:`_share`).
+
+#: Stands for the Fresnel term's scalar form (``jit_F``) in :func:`_pair_rows`, which is compiled
+#: in a generated module that binds it (:func:`_pair_run`).
+_F = None
+
+
+@device
+def _same(a, b):
+    """Whether two finite floats are the same number, sign of zero included."""
+    return a == b and math.copysign(1.0, a) == math.copysign(1.0, b)
+
+
+def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, mb, depth_t, theta, phi, perm,
+               esc_parts, hit_parts, rot_c, rot_s, n_whole, n_cut, gx, gw, t_edges, pf, single_on, multi_on):
+    """f of the pairs ``wi``, ``wo[M, 3]`` whose ``state`` is 1 into ``out[M, C]`` (or added, with
+    ``add``): the traced walk's single-bounce term (``single_on``) plus its exit lobes
+    (``multi_on``), as :meth:`PyramidMicrofacet._eval` computes them."""
+    nc = out.shape[1]
+    cap = 0                                 # states of one incidence: 4 first hits, then <= 3 faces each
+    level = 4
+    for _ in range(mb):
+        cap += level
+        level *= 3
+    sd = np.empty((cap, 3))                 # travelling direction after the state's bounce
+    parent = np.empty(cap, np.int64)
+    root = np.empty(cap, np.int64)          # the state of the sequence's first hit
+    face = np.empty(cap, np.int64)
+    sdepth = np.empty(cap, np.int64)
+    scode = np.empty(cap, np.int64)
+    scos = np.empty(cap)                    # local cosine of the state's bounce
+    status = np.zeros(cap, np.int64)        # 0: not evaluated, 1: on the walk, 2: not on it
+    smass = np.empty(cap)
+    sesc = np.empty(cap)
+    sgo = np.zeros(cap, np.bool_)
+    sphit = np.empty((cap, 4))
+    snorm = np.empty(cap)
+    cand = np.empty(cap, np.int64)          # exits of two or more bounces, in the walk's order
+    chain = np.empty(mb, np.int64)
+    c0 = np.empty(4)
+    area = np.empty(4)
+    p_first = np.empty(4)
+    first_cont = np.zeros(4)
+    energy1 = np.zeros(4)
+    have_e = np.zeros(4, np.bool_)
+    ri = np.empty(4)
+    ro = np.empty(4)
+    cd = np.empty(4)
+    hit_w = np.empty(4)
+    split = np.empty(4)
+    p_hit = np.empty(4)
+    w_hit = np.empty(4)
+    roots = np.empty(4)
+    edges = np.empty(t_edges.shape[0] + 4)
+    single = np.zeros(nc)
+    multi = np.zeros(nc)
+    have = False
+    px, py, pz = 0.0, 0.0, 0.0
+    op, cell, w00, w01, w10, w11 = 0, 0, 0.0, 0.0, 0.0, 0.0
+    g1i, lam_i = 0.0, 0.0
+    n_cand = 0
+    for i in range(wi.shape[0]):
+        if state[i] != 1:
+            continue
+        wix, wiy, wiz = wi[i, 0], wi[i, 1], wi[i, 2]
+        wox, woy, woz = wo[i, 0], wo[i, 1], wo[i, 2]
+        if not (have and _same(wix, px) and _same(wiy, py) and _same(wiz, pz)):
+            have = True
+            px, py, pz = wix, wiy, wiz
+            op, cell, w00, w01, w10, w11 = cell_of(math.acos(min(max(wiz, -1.0), 1.0)),
+                                                   math.atan2(rot_c * wiy - rot_s * wix, rot_c * wix + rot_s * wiy),
+                                                   theta, phi)
+            for k in range(4):
+                ri[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, esc_parts)
+            s_tot = _projected_area1(wix, wiy, wiz, normals, alpha)
+            g1i = min(1.0, wiz / s_tot) if wiz > 0.0 else 0.0
+            lam_i = max(s_tot / wiz - 1.0, 0.0)
+            n_cand = 0
+            if multi_on:
+                s_tot = 0.0
+                for k in range(4):
+                    c0[k] = wix * normals[k, 0] + wiy * normals[k, 1] + wiz * normals[k, 2]
+                    area[k] = FACET_WEIGHT * _visible_area1(c0[k], alpha)
+                    s_tot += area[k]
+                n = 0
+                for k in range(4):
+                    p_first[k] = area[k] / s_tot
+                    first_cont[k] = 0.0
+                    have_e[k] = False
+                    if c0[k] > 0.0 and p_first[k] > MIN_PROBABILITY:
+                        dot = -wix * normals[k, 0] + -wiy * normals[k, 1] + -wiz * normals[k, 2]
+                        sd[n, 0] = -wix - 2.0 * dot * normals[k, 0]
+                        sd[n, 1] = -wiy - 2.0 * dot * normals[k, 1]
+                        sd[n, 2] = -wiz - 2.0 * dot * normals[k, 2]
+                        parent[n] = -1
+                        root[n] = n
+                        face[n] = k
+                        sdepth[n] = 1
+                        scode[n] = k
+                        scos[n] = c0[k]
+                        n += 1
+                a = 0
+                for depth in range(1, mb):
+                    b = n
+                    for s in range(a, b):
+                        for j in range(4):
+                            dot = sd[s, 0] * normals[j, 0] + sd[s, 1] * normals[j, 1] + sd[s, 2] * normals[j, 2]
+                            if dot < 0.0:
+                                for x in range(3):
+                                    sd[n, x] = sd[s, x] - 2.0 * dot * normals[j, x]
+                                parent[n] = s
+                                root[n] = root[s]
+                                face[n] = j
+                                sdepth[n] = depth + 1
+                                scode[n] = 4 * scode[s] + j
+                                scos[n] = -dot
+                                n += 1
+                    a = b
+                for s in range(n):
+                    status[s] = 0
+                    snorm[s] = math.nan
+                    if sdepth[s] >= 2 and sd[s, 2] > 0.0:
+                        cand[n_cand] = s
+                        n_cand += 1
+        if single_on:
+            _escape_ratios(math.acos(min(max(woz, -1.0), 1.0)),
+                           math.atan2(rot_c * woy - rot_s * wox, rot_c * wox + rot_s * woy), theta, phi, perm,
+                           esc_parts, ro)
+            g1o = _g1(wox, woy, woz, normals, alpha)
+            base, cos_d = _traced_single1(wix, wiy, wiz, wox, woy, woz, g1i, g1o, ri, ro, frames, alpha)
+            for c in range(nc):
+                single[c] = base * _F(wix, wiy, wiz, wox, woy, woz, cos_d, pf, c)
+        for c in range(nc):
+            multi[c] = 0.0
+        for q in range(n_cand):
+            x = cand[q]
+            cc = wox * sd[x, 0] + woy * sd[x, 1] + woz * sd[x, 2]
+            if not cc > cos_cut:
+                continue
+            # the walk's states down to x, the unevaluated ones from the top
+            n = 0
+            y = x
+            while y >= 0:
+                chain[n] = y
+                n += 1
+                y = parent[y]
+            for t in range(n - 1, -1, -1):
+                y = chain[t]
+                if status[y] != 0:
+                    continue
+                p = parent[y]
+                if p < 0:
+                    mass = p_first[face[y]]
+                    on = True
+                else:
+                    mass = smass[p] * sphit[p, face[y]]
+                    on = status[p] == 1 and sgo[p] and sphit[p, face[y]] > 0.0 and mass > MIN_PROBABILITY
+                if not on:
+                    status[y] = 2
+                    continue
+                esc, cont, none = _branch(sd[y, 0], sd[y, 1], sd[y, 2], mass, scode[y], sdepth[y], normals, alpha,
+                                          depth_t, op, cell, w00, w01, w10, w11, phi, perm, esc_parts, hit_parts, cd,
+                                          hit_w, split, p_hit, w_hit)
+                status[y] = 1
+                smass[y] = mass
+                sesc[y] = esc
+                sgo[y] = cont > MIN_PROBABILITY and not none
+                for j in range(4):
+                    sphit[y, j] = p_hit[j]
+                if p < 0:
+                    first_cont[face[y]] = 0.0 if none else cont
+            if status[x] != 1 or not sesc[x] > MIN_PROBABILITY:
+                continue
+            # the walk goes on from the first hit with what its facet's lobe leaves (_share)
+            k0 = face[root[x]]
+            if not have_e[k0]:
+                have_e[k0] = True
+                energy1[k0] = 0.0
+                if area[k0] > MIN_PROBABILITY:
+                    energy1[k0] = _facet_energy1(wix, wiy, wiz, k0, lam_i, ri[k0], frames, normals, alpha, _G_TRACED,
+                                                 n_whole, n_cut, gx, gw, t_edges, rot_c, rot_s, theta, phi, perm,
+                                                 esc_parts, roots, edges)
+            left = max(p_first[k0] - energy1[k0], 0.0)
+            scale = left / first_cont[k0] if first_cont[k0] > 0.0 else 0.0
+            prob = sesc[x] * scale
+            if math.isnan(snorm[x]):
+                ez = sd[x, 2]
+                snorm[x] = 1.0 - 0.5 * math.erfc(ez / math.sqrt(max(1.0 - ez * ez, 0.0)) / beta)
+            t2 = (1.0 - cc * cc) / (cc * cc * beta * beta)
+            lobe = math.exp(-t2) / (np.pi * beta * beta * cc * cc * cc) if cc > 0.0 else 0.0
+            val = lobe / (snorm[x] * woz)
+            for c in range(nc):
+                fp = 1.0
+                for t in range(n - 1, -1, -1):
+                    fp = fp * _F(wix, wiy, wiz, wox, woy, woz, scos[chain[t]], pf, c)
+                multi[c] += val * (prob * fp)
+        for c in range(nc):
+            if single_on and multi_on:
+                v = single[c] + multi[c]
+            elif single_on:
+                v = single[c]
+            else:
+                v = multi[c]
+            out[i, c] = out[i, c] + v if add else v
+
+
+_PAIR_MODULE = '''\
+# Generated by brdftab.models.pyramid (do not edit): the pyramid model with the {fres!r} Fresnel term;
+# sources {digest}; constants {constants}
+import math
+
+import numba
+import numpy as np
+
+from brdftab._jit import OPTIONS
+from brdftab.models import pyramid as _pyramid
+from brdftab.models.components import get
+from brdftab.models.fused import as_device
+
+_F = as_device(get("fresnel", {fres!r}).jit_F)
+{bindings}
+
+
+@numba.njit(**OPTIONS)
+{body}'''
+
+_PAIR_RUNS: dict = {}
+
+
+def _pair_run(fres):
+    """:func:`_pair_rows` compiled with the Fresnel term ``fres``'s scalar form, from a generated
+    module named by a hash of its text (the sources of every function it inlines and the
+    constants they read: numba's cache alone sees only the generated file)."""
+    key = type(fres)
+    if key not in _PAIR_RUNS:
+        import dis
+        import inspect
+
+        from .._jit import _Lazy, generated_module, source_hash
+
+        g = globals()
+        bindings = []
+        for name in dict.fromkeys(ins.argval for ins in dis.get_instructions(_pair_rows) if ins.opname == "LOAD_GLOBAL"):
+            value = g.get(name)
+            if name in ("math", "np", "_F") or name not in g:
+                continue
+            if isinstance(value, _Lazy) or hasattr(value, "py_func"):
+                bindings.append(f"{name} = as_device(_pyramid.{name})")
+            else:   # a constant: its value is part of the text
+                bindings.append(f"{name} = {float(value) if isinstance(value, float) else int(value)!r}")
+        constants = repr(tuple(float(v) for v in (FACET_WEIGHT, MIN_PROBABILITY, _SQRT_PI, _G_TRACED, _G_CORRELATED)))
+        source = _PAIR_MODULE.format(fres=fres.name, digest=source_hash(_pair_rows, fres.jit_F), constants=constants,
+                                     bindings="\n".join(bindings), body=inspect.getsource(_pair_rows))
+        _PAIR_RUNS[key] = generated_module("pyramid", source)._pair_rows
+    return _PAIR_RUNS[key]
+
+
+def _pair_kernel(dist, fres, walk, max_bounces, lam, n, single, multi):
+    """The compiled evaluation (:meth:`~brdftab.brdf.BRDF.kernel`) of the pyramid model's
+    single-bounce term (``single``) and/or its exit lobes (``multi``), or None: for the Smith
+    walks (numpy), and for a Fresnel term that depends on the whole pair or has no scalar form."""
+    if walk != "traced" or fres.depends == "pair" or fres.jit_F is None:
+        return None
+    run = _pair_run(fres)
+    theta, phi, perm, esc_parts, hit_parts = pyramid_walk.table().ratio_arrays(hit=True)
+    n_whole, n_cut, nodes, t_edges = _COARSE
+    gx, gw = gauss_legendre(nodes, 0.0, 1.0)
+    beta = 2.0 * dist.alpha                                   # as MultiBounce's
+    cos_cut = 1.0 / np.sqrt(1.0 + _CUT * beta ** 2)
+    args = (np.ascontiguousarray(dist.frames), np.ascontiguousarray(dist.normals), float(dist.alpha), float(beta),
+            float(cos_cut), int(max_bounces if multi else 1), int(pyramid_walk.table().depth), theta, phi, perm,
+            esc_parts, hit_parts, float(np.cos(dist.phi0)), float(np.sin(dist.phi0)), int(n_whole), int(n_cut),
+            np.ascontiguousarray(gx), np.ascontiguousarray(gw), np.ascontiguousarray(t_edges, dtype=float),
+            np.ascontiguousarray(fres.jit_params(lam, n)), bool(single), bool(multi))
+
+    def evaluate(wi, wo, state, out, add):
+        run(wi, wo, state, out, add, *args)
+    return evaluate
+
+
+# --------------------------------------------------------------------------------------------
 # Quadrature: a rule per lobe, partitioned by the lobes' own values
 
 
@@ -1691,6 +1986,10 @@ class PyramidMicrofacet(Model):
 
     def _eval(self, wi, wo, lam, n):
         return self.terms._eval(wi, wo, lam, n)
+
+    def _kernel(self, lam, n):
+        """Both terms of a pair in one compiled loop (:func:`_pair_rows`; the traced walk)."""
+        return _pair_kernel(self.dist, self.fres, self.walk, self.max_bounces, lam, n, True, self.multi is not None)
 
     # -- sequences ---------------------------------------------------------------------------
 
