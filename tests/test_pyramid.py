@@ -742,6 +742,35 @@ def test_compiled_walk_table_interpolation_is_numpys():
             np.testing.assert_array_equal(a, b)
 
 
+def test_compiled_table_cells_are_numpys():
+    """The compiled cell lookup takes no fmod and no bisection: its remainder of a quarter turn
+    equals fmod's (multiples, neighbours of multiples, ±0) and its node index numpy's
+    searchsorted (nodes, their neighbours, the ends, beyond them)."""
+    import numba
+
+    from brdftab.models.fused import as_device
+
+    quarter = 0.5 * np.pi
+    rng = np.random.default_rng(12)
+    k = np.arange(5.0)[:, None] * quarter
+    a = np.concatenate([k.ravel(), np.nextafter(k, -np.inf).ravel(), np.nextafter(k, np.inf).ravel(), [0.0, -0.0],
+                        rng.uniform(0.0, 2.0 * np.pi, 2000)])
+    a = a[(a >= 0.0) & (a <= 2.0 * np.pi)]
+    fmod = as_device(pyramid_walk._fmod_small)
+    got = numba.njit(lambda x, b: np.array([fmod(v, b) for v in x]))(a, quarter)
+    np.testing.assert_array_equal(got, np.fmod(a, quarter))
+    assert np.array_equal(np.signbit(got), np.signbit(np.fmod(a, quarter)))
+    tab = pyramid_walk.table()
+    axis = as_device(pyramid_walk._axis)
+    index = numba.njit(lambda g, x: np.array([axis(g, v)[0] for v in x]))
+    for grid in (tab.theta, tab.phi):
+        x = np.concatenate([grid, np.nextafter(grid, -np.inf), np.nextafter(grid, np.inf), [-1.0, 4.0, np.nan],
+                            rng.uniform(grid[0], grid[-1], 2000)])
+        ref = np.clip(np.searchsorted(grid, np.clip(x, grid[0], grid[-1]), side="right") - 1, 0, grid.size - 2)
+        ref[np.isnan(x)] = 0
+        np.testing.assert_array_equal(index(grid, x), ref)
+
+
 def test_compiled_visible_areas_and_facet_energies_match_numpy():
     """visible_area and the facet lobes' energies (the coarse rule the evaluation takes, every
     walk's G, the Dirac limit) compiled, against numpy: 1e-12 relative (energies below 1e-12 of the incident energy, from facets seen

@@ -291,9 +291,9 @@ def _np_mod(a, b):
 
 
 @device
-def _np_floordiv(a, b):
-    """numpy's ``a // b`` of floats (b > 0), which rounds the quotient as its divmod does."""
-    m = np.fmod(a, b)
+def _floordiv_rest(a, b, m):
+    """numpy's ``a // b`` of floats (b > 0), which rounds the quotient as its divmod does, given
+    m = fmod(a, b)."""
     div = (a - m) / b
     if m != 0.0 and m < 0.0:
         div -= 1.0
@@ -306,18 +306,35 @@ def _np_floordiv(a, b):
 
 
 @device
+def _fmod_small(a, b):
+    """fmod(a, b) for 0 <= a <= 4b (b > 0), exact as fmod is: by subtractions of b and 2b, each
+    exact (Sterbenz: the operands are within a factor 2)."""
+    if a < b:
+        return a
+    if a < 2.0 * b:
+        return a - b
+    r = a - 2.0 * b
+    if r < b:
+        return r
+    if r < 2.0 * b:
+        return r - b
+    return r - 2.0 * b
+
+
+@device
 def _axis(grid, x):
-    """:meth:`WalkTable._weights` of one value: (index, weight)."""
+    """:meth:`WalkTable._weights` of one value: (index, weight). The last node at or below x
+    (numpy's ``searchsorted(side="right") - 1``) is found from a guess by the mean step,
+    stepping to the neighbours (the nodes increase)."""
     n = grid.shape[0]
     x = min(max(x, grid[0]), grid[n - 1])
-    lo, hi = 0, n
-    while lo < hi:                      # searchsorted(side="right")
-        mid = (lo + hi) // 2
-        if grid[mid] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    j = min(max(lo - 1, 0), n - 2)
+    g = (x - grid[0]) / (grid[n - 1] - grid[0]) * (n - 1)
+    j = int(g) if (g >= 0.0 and g < n) else 0
+    while j > 0 and grid[j] > x:
+        j -= 1
+    while j < n - 1 and grid[j + 1] <= x:
+        j += 1
+    j = min(max(j, 0), n - 2)
     return j, (x - grid[j]) / (grid[j + 1] - grid[j])
 
 
@@ -325,10 +342,16 @@ def _axis(grid, x):
 def cell_of(theta_w, phi_w, theta, phi):
     """Symmetry index, flat index of the (θ, φ) cell's first node and the bilinear weights of a
     direction of polar angle ``theta_w`` and azimuth ``phi_w`` (from a face normal's;
-    :func:`domain_op`)."""
+    :func:`domain_op`). (numpy's mod and floor division of an azimuth within ±2π take no fmod:
+    fmod(φ, 2π) is φ there, and :func:`_fmod_small` gives the quarter's remainder.)"""
     quarter = 0.5 * np.pi
-    p = _np_mod(phi_w, 2.0 * np.pi)
-    r = min(int(_np_floordiv(p, quarter)), 3)
+    two_pi = 2.0 * np.pi
+    if -two_pi < phi_w < two_pi:
+        p = phi_w + two_pi if phi_w < 0.0 else phi_w
+    else:
+        p = _np_mod(phi_w, two_pi)
+    m = _fmod_small(p, quarter) if (p >= 0.0 and p <= 4.0 * quarter) else np.fmod(p, quarter)
+    r = min(int(_floordiv_rest(p, quarter, m)), 3)
     p = p - r * quarter
     m = p > 0.5 * quarter
     op = 2 * r + (1 if m else 0)
