@@ -540,12 +540,12 @@ def _root_or(r, top):
 
 
 @device
-def _ray_roots(iz, fr, a, psi, cf, c1, c2, top, roots):
-    """The cuts of one ray of :func:`_facet_rays` into ``roots[4]``; returns (q0, q1, q2, ⟨ωi, v⟩,
-    v_z)."""
-    cv = math.cos(psi) * c1 + math.sin(psi) * c2
+def _ray_roots(iz, fr, a, cp, sp, cf, c1, c2, top, roots):
+    """The cuts of one ray of :func:`_facet_rays` (azimuth ψ: ``cp``, ``sp`` = cosψ, sinψ) into
+    ``roots[4]``; returns (q0, q1, q2, ⟨ωi, v⟩, v_z)."""
+    cv = cp * c1 + sp * c2
     fz = fr[2, 2]
-    vz = math.cos(psi) * fr[0, 2]
+    vz = cp * fr[0, 2]
     q0 = 2.0 * cf * fz - iz
     q1 = 2.0 * a * (cf * vz + cv * fz)
     q2 = a * a * (2.0 * cv * vz - iz)
@@ -566,16 +566,34 @@ def _facet_energy_rows(wi, kk, lam_i, r_i, frames, normals, alpha, g_form, n_who
     panel edges ``t_edges``), the walk table's escape parts for r_k(ωo)."""
     roots = np.empty(4)
     edges = np.empty(t_edges.shape[0] + 4)
+    trig = _psi_trig(n_whole, n_cut)
     for p in range(wi.shape[0]):
         out[p] = _facet_energy1(wi[p, 0], wi[p, 1], wi[p, 2], kk[p], lam_i[p], r_i[p], frames, normals, alpha, g_form,
-                                n_whole, n_cut, gx, gw, t_edges, rot_c, rot_s, theta, phi, esc_perm, flat, roots, edges)
+                                n_whole, n_cut, trig, gx, gw, t_edges, rot_c, rot_s, theta, phi, esc_perm, flat, roots,
+                                edges)
 
 
 @device
-def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_whole, n_cut, gx, gw, t_edges, rot_c,
-                   rot_s, theta, phi, esc_perm, flat, roots, edges):
+def _psi_trig(n_whole, n_cut):
+    """cosψ and sinψ of the rays of :func:`_facet_energy1` [2, n_whole + n_cut]: the n_whole
+    azimuths of a whole lobe, then the n_cut of a cut one."""
+    trig = np.empty((2, n_whole + n_cut))
+    for r in range(n_whole):
+        psi = 2.0 * np.pi * (r + 0.5) / n_whole
+        trig[0, r] = math.cos(psi)
+        trig[1, r] = math.sin(psi)
+    for r in range(n_cut):
+        psi = 2.0 * np.pi * (r + 0.5) / n_cut
+        trig[0, n_whole + r] = math.cos(psi)
+        trig[1, n_whole + r] = math.sin(psi)
+    return trig
+
+
+@device
+def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_whole, n_cut, trig, gx, gw, t_edges,
+                   rot_c, rot_s, theta, phi, esc_perm, flat, roots, edges):
     """One energy of :func:`_facet_energy_rows`: incidence (``w0``, ``w1``, ``w2``), facet ``k``
-    (``roots[4]``, ``edges[len(t_edges) + 4]``: scratch)."""
+    (``trig``: :func:`_psi_trig`; ``roots[4]``, ``edges[len(t_edges) + 4]``: scratch)."""
     a = alpha
     ne = t_edges.shape[0]
     top = t_edges[ne - 1]
@@ -584,23 +602,30 @@ def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_
     c1 = w0 * fr[0, 0] + w1 * fr[0, 1] + w2 * fr[0, 2]
     c2 = w0 * fr[1, 0] + w1 * fr[1, 1] + w2 * fr[1, 2]
     n_psi = n_whole
+    first = 0                              # the rays' column in trig
     for r in range(n_whole):
-        psi = 2.0 * np.pi * (r + 0.5) / n_whole
-        _ray_roots(w2, fr, a, psi, cf, c1, c2, top, roots)
+        _ray_roots(w2, fr, a, trig[0, r], trig[1, r], cf, c1, c2, top, roots)
         if roots[0] < top or roots[2] < top or roots[3] < top:
             n_psi = n_cut
+            first = n_whole
             break
     g1i = 1.0 / (1.0 + lam_i)
     acc = 0.0
     for r in range(n_psi):
-        psi = 2.0 * np.pi * (r + 0.5) / n_psi
-        q0, q1, q2, cv, vz = _ray_roots(w2, fr, a, psi, cf, c1, c2, top, roots)
+        cp, sp = trig[0, first + r], trig[1, first + r]
+        q0, q1, q2, cv, vz = _ray_roots(w2, fr, a, cp, sp, cf, c1, c2, top, roots)
+        # the panel ends: the rule's edges (sorted) and the ray's cuts, in order
         for j in range(ne):
             edges[j] = t_edges[j]
+        n_e = ne
         for j in range(4):
-            edges[ne + j] = roots[j]
-        edges.sort()
-        cp, sp = math.cos(psi), math.sin(psi)
+            v = roots[j]
+            x = n_e
+            while x > 0 and edges[x - 1] > v:
+                edges[x] = edges[x - 1]
+                x -= 1
+            edges[x] = v
+            n_e += 1
         for j in range(ne + 3):
             lo, hi = edges[j], edges[j + 1]
             mid = 0.5 * (lo + hi)
@@ -1649,6 +1674,7 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
     w_hit = np.empty(4)
     roots = np.empty(4)
     edges = np.empty(t_edges.shape[0] + 4)
+    trig = _psi_trig(n_whole, n_cut)
     single = np.zeros(nc)
     multi = np.zeros(nc)
     have = False
@@ -1775,7 +1801,7 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
                 energy1[k0] = 0.0
                 if area[k0] > MIN_PROBABILITY:
                     energy1[k0] = _facet_energy1(wix, wiy, wiz, k0, lam_i, ri[k0], frames, normals, alpha, _G_TRACED,
-                                                 n_whole, n_cut, gx, gw, t_edges, rot_c, rot_s, theta, phi, perm,
+                                                 n_whole, n_cut, trig, gx, gw, t_edges, rot_c, rot_s, theta, phi, perm,
                                                  esc_parts, roots, edges)
             left = max(p_first[k0] - energy1[k0], 0.0)
             scale = left / first_cont[k0] if first_cont[k0] > 0.0 else 0.0
