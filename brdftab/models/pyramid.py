@@ -193,7 +193,7 @@ from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from . import pyramid_walk
-from .pyramid_walk import cell_of, ratio_in_cell, ratio_one
+from .pyramid_walk import cell_of, ratio_in_cell, ratio_near
 from ._registry import register
 from .combinators import Sum
 from .distributions import d_beckmann
@@ -567,10 +567,12 @@ def _facet_energy_rows(wi, kk, lam_i, r_i, frames, normals, alpha, g_form, n_who
     roots = np.empty(4)
     edges = np.empty(t_edges.shape[0] + 4)
     trig = _psi_trig(n_whole, n_cut)
+    cell_i = np.zeros(3, np.int64)
+    cell_v = np.empty(8)
     for p in range(wi.shape[0]):
         out[p] = _facet_energy1(wi[p, 0], wi[p, 1], wi[p, 2], kk[p], lam_i[p], r_i[p], frames, normals, alpha, g_form,
                                 n_whole, n_cut, trig, gx, gw, t_edges, rot_c, rot_s, theta, phi, esc_perm, flat, roots,
-                                edges)
+                                edges, cell_i, cell_v)
 
 
 @device
@@ -591,9 +593,11 @@ def _psi_trig(n_whole, n_cut):
 
 @device
 def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_whole, n_cut, trig, gx, gw, t_edges,
-                   rot_c, rot_s, theta, phi, esc_perm, flat, roots, edges):
+                   rot_c, rot_s, theta, phi, esc_perm, flat, roots, edges, cell_i, cell_v):
     """One energy of :func:`_facet_energy_rows`: incidence (``w0``, ``w1``, ``w2``), facet ``k``
-    (``trig``: :func:`_psi_trig`; ``roots[4]``, ``edges[len(t_edges) + 4]``: scratch)."""
+    (``trig``: :func:`_psi_trig`; ``roots[4]``, ``edges[len(t_edges) + 4]``, ``cell_i[3]`` (int),
+    ``cell_v[8]``: scratch)."""
+    cell_i[0] = -1                         # r_k(ωo) of the nodes: one run of ratio_near
     a = alpha
     ne = t_edges.shape[0]
     top = t_edges[ne - 1]
@@ -661,8 +665,9 @@ def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_
                 area_o = _projected_area1(ox, oy, oz, normals, a)
                 if g_form == _G_TRACED:
                     g1o = min(1.0, oz / area_o) if oz > 0.0 else 0.0
-                    r_o = ratio_one(rot_c * ox + rot_s * oy, rot_c * oy - rot_s * ox, oz, k, theta, phi,
-                                    esc_perm, flat)
+                    r_o = ratio_near(math.acos(min(max(oz, -1.0), 1.0)),
+                                     math.atan2(rot_c * oy - rot_s * ox, rot_c * ox + rot_s * oy), k, theta, phi,
+                                     esc_perm, flat, cell_i, cell_v)
                     gg = min(g1i * g1o * math.sqrt(r_i * r_o), min(g1i, g1o))
                 else:
                     lam_o = max(area_o / oz - 1.0, 0.0) if oz > 0.0 else math.inf
@@ -1675,6 +1680,8 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
     roots = np.empty(4)
     edges = np.empty(t_edges.shape[0] + 4)
     trig = _psi_trig(n_whole, n_cut)
+    cell_i = np.zeros(3, np.int64)
+    cell_v = np.empty(8)
     single = np.zeros(nc)
     multi = np.zeros(nc)
     have = False
@@ -1802,7 +1809,7 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
                 if area[k0] > MIN_PROBABILITY:
                     energy1[k0] = _facet_energy1(wix, wiy, wiz, k0, lam_i, ri[k0], frames, normals, alpha, _G_TRACED,
                                                  n_whole, n_cut, trig, gx, gw, t_edges, rot_c, rot_s, theta, phi, perm,
-                                                 esc_parts, roots, edges)
+                                                 esc_parts, roots, edges, cell_i, cell_v)
             left = max(p_first[k0] - energy1[k0], 0.0)
             scale = left / first_cont[k0] if first_cont[k0] > 0.0 else 0.0
             prob = sesc[x] * scale

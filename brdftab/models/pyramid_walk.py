@@ -322,28 +322,44 @@ def _fmod_small(a, b):
 
 
 @device
-def _axis(grid, x):
-    """:meth:`WalkTable._weights` of one value: (index, weight). The last node at or below x
-    (numpy's ``searchsorted(side="right") - 1``) is found from a guess by the mean step,
-    stepping to the neighbours (the nodes increase)."""
+def _axis_index(grid, x):
+    """The index of :func:`_axis` for ``x`` already clamped to the nodes: the last node at or
+    below x (numpy's ``searchsorted(side="right") - 1``, at most the last cell's), found from a
+    guess by the mean step, stepping to the neighbours (the nodes increase)."""
     n = grid.shape[0]
-    x = min(max(x, grid[0]), grid[n - 1])
     g = (x - grid[0]) / (grid[n - 1] - grid[0]) * (n - 1)
     j = int(g) if (g >= 0.0 and g < n) else 0
     while j > 0 and grid[j] > x:
         j -= 1
     while j < n - 1 and grid[j + 1] <= x:
         j += 1
-    j = min(max(j, 0), n - 2)
+    return min(max(j, 0), n - 2)
+
+
+@device
+def _axis(grid, x):
+    """:meth:`WalkTable._weights` of one value: (index, weight)."""
+    n = grid.shape[0]
+    x = min(max(x, grid[0]), grid[n - 1])
+    j = _axis_index(grid, x)
     return j, (x - grid[j]) / (grid[j + 1] - grid[j])
 
 
 @device
-def cell_of(theta_w, phi_w, theta, phi):
-    """Symmetry index, flat index of the (θ, φ) cell's first node and the bilinear weights of a
-    direction of polar angle ``theta_w`` and azimuth ``phi_w`` (from a face normal's;
-    :func:`domain_op`). (numpy's mod and floor division of an azimuth within ±2π take no fmod:
-    fmod(φ, 2π) is φ there, and :func:`_fmod_small` gives the quarter's remainder.)"""
+def _axis_near(grid, x, j):
+    """:func:`_axis` of a value whose index is likely ``j`` (a neighbour's; 0 <= j <= n - 2)."""
+    n = grid.shape[0]
+    x = min(max(x, grid[0]), grid[n - 1])
+    if not (grid[j] <= x and (x < grid[j + 1] or j == n - 2)):
+        j = _axis_index(grid, x)
+    return j, (x - grid[j]) / (grid[j + 1] - grid[j])
+
+
+@device
+def _domain(phi_w):
+    """The symmetry index of :func:`domain_op` and the azimuth it maps ``phi_w`` to. (numpy's mod
+    and floor division of an azimuth within ±2π take no fmod: fmod(φ, 2π) is φ there, and
+    :func:`_fmod_small` gives the quarter's remainder.)"""
     quarter = 0.5 * np.pi
     two_pi = 2.0 * np.pi
     if -two_pi < phi_w < two_pi:
@@ -357,6 +373,15 @@ def cell_of(theta_w, phi_w, theta, phi):
     op = 2 * r + (1 if m else 0)
     if m:
         p = quarter - p
+    return op, p
+
+
+@device
+def cell_of(theta_w, phi_w, theta, phi):
+    """Symmetry index, flat index of the (θ, φ) cell's first node and the bilinear weights of a
+    direction of polar angle ``theta_w`` and azimuth ``phi_w`` (from a face normal's;
+    :func:`domain_op`)."""
+    op, p = _domain(phi_w)
     i, s = _axis(theta, theta_w)
     j, t = _axis(phi, p)
     return op, i * phi.shape[0] + j, (1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t
@@ -397,6 +422,33 @@ def ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat):
     b = cell * nc + esc_perm[op, code]
     num = (((0.0 + w00 * flat[b, 0]) + w01 * flat[b + nc, 0]) + w10 * flat[b + step, 0]) + w11 * flat[b + step + nc, 0]
     den = (((0.0 + w00 * flat[b, 1]) + w01 * flat[b + nc, 1]) + w10 * flat[b + step, 1]) + w11 * flat[b + step + nc, 1]
+    if den > 0.0:
+        return num / den
+    return 1.0
+
+
+@device
+def ratio_near(theta_w, phi_w, code, theta, phi, esc_perm, flat, ci, cv):
+    """:func:`ratio_at` for a run of nearby directions (a lobe's quadrature nodes) and one
+    ``code``: the previous call's cell is tried first, and its nodes' parts are kept
+    (``ci[3]``: symmetry, θ and φ index, ``ci[0]`` = -1 before the run's first call; ``cv[8]``:
+    the parts). The same arithmetic, so the same values."""
+    op, p = _domain(phi_w)
+    i, s = _axis_near(theta, theta_w, max(ci[1], 0))
+    j, t = _axis_near(phi, p, max(ci[2], 0))
+    if op != ci[0] or i != ci[1] or j != ci[2]:
+        nc = esc_perm.shape[1]
+        step = phi.shape[0] * nc
+        b = (i * phi.shape[0] + j) * nc + esc_perm[op, code]
+        for q in range(2):
+            cv[4 * q] = flat[b, q]
+            cv[4 * q + 1] = flat[b + nc, q]
+            cv[4 * q + 2] = flat[b + step, q]
+            cv[4 * q + 3] = flat[b + step + nc, q]
+        ci[0], ci[1], ci[2] = op, i, j
+    w00, w01, w10, w11 = (1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t
+    num = (((0.0 + w00 * cv[0]) + w01 * cv[1]) + w10 * cv[2]) + w11 * cv[3]
+    den = (((0.0 + w00 * cv[4]) + w01 * cv[5]) + w10 * cv[6]) + w11 * cv[7]
     if den > 0.0:
         return num / den
     return 1.0
