@@ -1544,13 +1544,14 @@ def _traced_single_rows(wi, wo, ti, pi, to, po, frames, normals, alpha, theta, p
     ``to``, ``po``: the table's angles of ωi and ωo (numpy's)."""
     ri = np.empty(4)
     ro = np.empty(4)
+    dk = np.empty(4)
     for m in range(wi.shape[0]):
         g1i = _g1(wi[m, 0], wi[m, 1], wi[m, 2], normals, alpha)
         g1o = _g1(wo[m, 0], wo[m, 1], wo[m, 2], normals, alpha)
         _escape_ratios(ti[m], pi[m], theta, phi, perm, flat, ri)
         _escape_ratios(to[m], po[m], theta, phi, perm, flat, ro)
-        base[m], cos_d[m] = _traced_single1(wi[m, 0], wi[m, 1], wi[m, 2], wo[m, 0], wo[m, 1], wo[m, 2], g1i, g1o, ri,
-                                            ro, frames, alpha)
+        cos_d[m] = _facet_lobes(wi[m, 0], wi[m, 1], wi[m, 2], wo[m, 0], wo[m, 1], wo[m, 2], frames, alpha, dk)
+        base[m] = _traced_single_sum(dk, wi[m, 2], wo[m, 2], g1i, g1o, ri, ro)
 
 
 @device
@@ -1569,22 +1570,30 @@ def _escape_ratios(theta_w, phi_w, theta, phi, perm, flat, r):
 
 
 @device
-def _traced_single1(wix, wiy, wiz, wox, woy, woz, g1i, g1o, ri, ro, frames, alpha):
-    """One pair of :func:`_traced_single_rows` given G1 and r_k of both directions: (Σ_k f_k
-    cosθo / cosθo, cos_d)."""
+def _facet_lobes(wix, wiy, wiz, wox, woy, woz, frames, alpha, dk):
+    """D_k(h) a_k of the four facets at the pair's half vector into ``dk[4]`` (0 where h_z <= 0);
+    returns cos_d."""
     hx, hy, hz = wix + wox, wiy + woy, wiz + woz
     norm = math.sqrt(hx * hx + hy * hy + hz * hz)
     hx, hy, hz = hx / norm, hy / norm, hz / norm
-    tot = 0.0
     for k in range(4):
         fr = frames[k]
         lx = fr[0, 0] * hx + fr[0, 1] * hy + fr[0, 2] * hz
         ly = fr[1, 0] * hx + fr[1, 1] * hy + fr[1, 2] * hz
         lz = fr[2, 0] * hx + fr[2, 1] * hy + fr[2, 2] * hz
-        dk = _beckmann1(lx, ly, lz, alpha) * FACET_WEIGHT if hz > 0.0 else 0.0
+        dk[k] = _beckmann1(lx, ly, lz, alpha) * FACET_WEIGHT if hz > 0.0 else 0.0
+    return 0.5 * norm
+
+
+@device
+def _traced_single_sum(dk, wiz, woz, g1i, g1o, ri, ro):
+    """Σ_k f_k cosθo / cosθo of :func:`_traced_single_rows` given :func:`_facet_lobes`' D_k a_k and
+    G1 and r_k of both directions."""
+    tot = 0.0
+    for k in range(4):
         g = min(g1i * g1o * math.sqrt(ri[k] * ro[k]), min(g1i, g1o))
-        tot += dk * g / (4.0 * wiz)
-    return tot / woz, 0.5 * norm
+        tot += dk[k] * g / (4.0 * wiz)
+    return tot / woz
 
 
 @kernel
@@ -1672,6 +1681,7 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
     have_e = np.zeros(4, np.bool_)
     ri = np.empty(4)
     ro = np.empty(4)
+    dk = np.empty(4)
     cd = np.empty(4)
     hit_w = np.empty(4)
     split = np.empty(4)
@@ -1753,11 +1763,15 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
                         cand[n_cand] = s
                         n_cand += 1
         if single_on:
-            _escape_ratios(math.acos(min(max(woz, -1.0), 1.0)),
-                           math.atan2(rot_c * woy - rot_s * wox, rot_c * wox + rot_s * woy), theta, phi, perm,
-                           esc_parts, ro)
-            g1o = _g1(wox, woy, woz, normals, alpha)
-            base, cos_d = _traced_single1(wix, wiy, wiz, wox, woy, woz, g1i, g1o, ri, ro, frames, alpha)
+            cos_d = _facet_lobes(wix, wiy, wiz, wox, woy, woz, frames, alpha, dk)
+            base = 0.0
+            if dk[0] != 0.0 or dk[1] != 0.0 or dk[2] != 0.0 or dk[3] != 0.0:
+                # (else every lobe is 0 here, whatever G: the sum is 0 without ωo's G1 and r_k)
+                _escape_ratios(math.acos(min(max(woz, -1.0), 1.0)),
+                               math.atan2(rot_c * woy - rot_s * wox, rot_c * wox + rot_s * woy), theta, phi, perm,
+                               esc_parts, ro)
+                g1o = _g1(wox, woy, woz, normals, alpha)
+                base = _traced_single_sum(dk, wiz, woz, g1i, g1o, ri, ro)
             for c in range(nc):
                 single[c] = base * _F(wix, wiy, wiz, wox, woy, woz, cos_d, pf, c)
         for c in range(nc):
