@@ -722,6 +722,16 @@ def test_compiled_evaluation_matches_numpy():
             assert np.count_nonzero(ref[ok] > 0) > 150
             rel = np.abs(got[ok] - ref[ok]) / np.maximum(np.abs(ref[ok]), 1e-300)
             assert rel.max() <= 2e-12, (term.describe(), rel.max())
+        # the compiled helpers, which a sum with a term that has no kernel still takes (_eval)
+        u_i, u_o = np.concatenate([wi[:1500], wi2]), np.concatenate([wo[:1500], wo2])   # unit: not the special rows
+        up = (u_i[:, 2] > 1e-6) & (u_o[:, 2] > 1e-6)
+        u_i, u_o = u_i[up], u_o[up]
+        got = m._eval(u_i, u_o, lam_r, m.layout.n_out(lam_r))
+        with numpy_reference():
+            ref = m._eval(u_i, u_o, lam_r, m.layout.n_out(lam_r))
+        assert np.array_equal(got == 0, ref == 0)
+        rel = np.abs(got - ref) / np.maximum(np.abs(ref), 1e-300)
+        assert rel.max() <= 2e-12, (m.describe(), rel.max())
 
 
 def test_compiled_walk_table_interpolation_is_numpys():

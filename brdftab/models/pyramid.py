@@ -164,13 +164,19 @@ With silicon's Fresnel (n + ik = 3.882 + 0.019i) the total reflectance agrees wi
 (tracer / model: 0.097 / 0.095 at normal incidence, 0.206 / 0.207 at 45°/0°, 0.203 / 0.204 at
 45°/25°).
 
-Compiled evaluation. The per-pair and per-incidence work of ``eval`` is compiled (numba, see
-:mod:`brdftab._jit`): the walk table's interpolation, the visible areas, the traced walk's
-sequences, the facet lobes' energies (the coarse rule), the traced single-bounce term and the
-exit lobes' sums; the Smith walks' sequences, the fine rule and Fresnel stay numpy. Inside
+Compiled evaluation. With the traced walk, ``eval`` is one compiled loop over the pairs (numba,
+see :mod:`brdftab._jit`; :func:`_pair_rows`, generated per Fresnel term): per incidence direction
+(kept while consecutive pairs share it, as a grid's do) its walk-table cell, G1, Λ and the face
+sequences its walk can take, found by geometry alone; per pair the single-bounce term, then the
+exit lobes that reach ωo, the walk's probabilities computed only along their sequences and the
+facet energy (the coarse rule) of a sequence's first facet only when one is needed. The terms
+(``quadrature_parts``) evaluate the same way. The Smith walks compile the helpers (walk-table
+interpolation, visible areas, facet energies, exit lobes' sums) around numpy sequences; the fine
+rule stays numpy, and so does a Fresnel term that depends on the whole pair. Inside
 :func:`brdftab.brdf.numpy_reference` the numpy code runs throughout; the two agree to 2e-12
-relative (tests: numpy's exp and scipy's erf differ from libm's in the last digit, and the
-walk's share P_k − E_k of a facet whose lobe sends out most magnifies it).
+relative on the tests' pairs (numpy's exp, arccos and arctan2 and scipy's erf differ from libm's
+in the last digit, and the walk's share P_k − E_k of a facet whose lobe sends out most magnifies
+it).
 
 Limits: equal pyramid heights only; random heights (the Procel distribution of the thesis'
 §4.1) are future work, as are the bevelled edges of real pyramids. The surface is fully
