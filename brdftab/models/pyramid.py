@@ -199,7 +199,7 @@ from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from . import pyramid_walk
-from .pyramid_walk import cell_of, ratio_in_cell, ratio_near
+from .pyramid_walk import _axis_index, _domain, bilinear_ratio, cell_of, corner_weights, ratio_in_cell
 from ._registry import register
 from .combinators import Sum
 from .distributions import d_beckmann
@@ -531,7 +531,7 @@ def _facet_rule(dist, wi, k, level):
 _G_TRACED, _G_CORRELATED, _G_UNCORRELATED = 0, 1, 2
 
 
-@device
+@device(inline=True)
 def _projected_area1(wx, wy, wz, normals, alpha):
     """:meth:`PyramidDistribution.projected_area` of one direction."""
     tot = 0.0
@@ -545,7 +545,7 @@ def _root_or(r, top):
     return r if (math.isfinite(r) and r > 0.0 and r < top) else top
 
 
-@device
+@device(inline=True)
 def _ray_roots(iz, fr, a, cp, sp, cf, c1, c2, top, roots):
     """The cuts of one ray of :func:`_facet_rays` (azimuth ψ: ``cp``, ``sp`` = cosψ, sinψ) into
     ``roots[4]``; returns (q0, q1, q2, ⟨ωi, v⟩, v_z)."""
@@ -603,7 +603,8 @@ def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_
     """One energy of :func:`_facet_energy_rows`: incidence (``w0``, ``w1``, ``w2``), facet ``k``
     (``trig``: :func:`_psi_trig`; ``roots[4]``, ``edges[len(t_edges) + 4]``, ``cell_i[3]`` (int),
     ``cell_v[8]``: scratch)."""
-    cell_i[0] = -1                         # r_k(ωo) of the nodes: one run of ratio_near
+    cell_i[0], cell_i[1], cell_i[2] = -1, 0, 0      # no cell yet for r_k(ωo)
+    nt, n_phi, n_codes = theta.shape[0], phi.shape[0], esc_perm.shape[1]
     a = alpha
     ne = t_edges.shape[0]
     top = t_edges[ne - 1]
@@ -671,9 +672,31 @@ def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_
                 area_o = _projected_area1(ox, oy, oz, normals, a)
                 if g_form == _G_TRACED:
                     g1o = min(1.0, oz / area_o) if oz > 0.0 else 0.0
-                    r_o = ratio_near(math.acos(min(max(oz, -1.0), 1.0)),
-                                     math.atan2(rot_c * oy - rot_s * ox, rot_c * ox + rot_s * oy), k, theta, phi,
-                                     esc_perm, flat, cell_i, cell_v)
+                    # r_k(ωo): ratio_at, trying the previous node's cell first and keeping its
+                    # nodes' parts (the same arithmetic; written out here, where a call that
+                    # takes the table's arrays would count their references at every node)
+                    op, p_w = _domain(math.atan2(rot_c * oy - rot_s * ox, rot_c * ox + rot_s * oy))
+                    x = min(max(math.acos(min(max(oz, -1.0), 1.0)), theta[0]), theta[nt - 1])
+                    i = cell_i[1]
+                    if not (theta[i] <= x and (x < theta[i + 1] or i == nt - 2)):
+                        i = _axis_index(theta, x)
+                    s_w = (x - theta[i]) / (theta[i + 1] - theta[i])
+                    y = min(max(p_w, phi[0]), phi[n_phi - 1])
+                    j = cell_i[2]
+                    if not (phi[j] <= y and (y < phi[j + 1] or j == n_phi - 2)):
+                        j = _axis_index(phi, y)
+                    t_w = (y - phi[j]) / (phi[j + 1] - phi[j])
+                    if op != cell_i[0] or i != cell_i[1] or j != cell_i[2]:
+                        b = (i * n_phi + j) * n_codes + esc_perm[op, k]
+                        for q in range(2):
+                            cell_v[4 * q] = flat[b, q]
+                            cell_v[4 * q + 1] = flat[b + n_codes, q]
+                            cell_v[4 * q + 2] = flat[b + n_phi * n_codes, q]
+                            cell_v[4 * q + 3] = flat[b + n_phi * n_codes + n_codes, q]
+                        cell_i[0], cell_i[1], cell_i[2] = op, i, j
+                    w00, w01, w10, w11 = corner_weights(s_w, t_w)
+                    r_o = bilinear_ratio(w00, w01, w10, w11, cell_v[0], cell_v[1], cell_v[2], cell_v[3], cell_v[4],
+                                         cell_v[5], cell_v[6], cell_v[7])
                     gg = min(g1i * g1o * math.sqrt(r_i * r_o), min(g1i, g1o))
                 else:
                     lam_o = max(area_o / oz - 1.0, 0.0) if oz > 0.0 else math.inf
@@ -1560,13 +1583,13 @@ def _traced_single_rows(wi, wo, ti, pi, to, po, frames, normals, alpha, theta, p
         base[m] = _traced_single_sum(dk, wi[m, 2], wo[m, 2], g1i, g1o, ri, ro)
 
 
-@device
+@device(inline=True)
 def _g1(wx, wy, wz, normals, alpha):
     """:meth:`PyramidDistribution.G1` of one direction (0 at and below the horizon)."""
     return min(1.0, wz / _projected_area1(wx, wy, wz, normals, alpha)) if wz > 0.0 else 0.0
 
 
-@device
+@device(inline=True)
 def _escape_ratios(theta_w, phi_w, theta, phi, perm, flat, r):
     """r_k of :meth:`SingleBounce.traced_ratio` for the four facets into ``r[4]``, at the table
     angles ``theta_w``, ``phi_w`` of a direction (``flat``: the escape parts)."""
@@ -1575,7 +1598,7 @@ def _escape_ratios(theta_w, phi_w, theta, phi, perm, flat, r):
         r[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
 
 
-@device
+@device(inline=True)
 def _facet_lobes(wix, wiy, wiz, wox, woy, woz, frames, alpha, dk):
     """D_k(h) a_k of the four facets at the pair's half vector into ``dk[4]`` (0 where h_z <= 0);
     returns cos_d."""
@@ -1591,7 +1614,7 @@ def _facet_lobes(wix, wiy, wiz, wox, woy, woz, frames, alpha, dk):
     return 0.5 * norm
 
 
-@device
+@device(inline=True)
 def _traced_single_sum(dk, wiz, woz, g1i, g1o, ri, ro):
     """Σ_k f_k cosθo / cosθo of :func:`_traced_single_rows` given :func:`_facet_lobes`' D_k a_k and
     G1 and r_k of both directions."""

@@ -321,7 +321,7 @@ def _fmod_small(a, b):
     return r - 2.0 * b
 
 
-@device
+@device(inline=True)
 def _axis_index(grid, x):
     """The index of :func:`_axis` for ``x`` already clamped to the nodes: the last node at or
     below x (numpy's ``searchsorted(side="right") - 1``, at most the last cell's), found from a
@@ -336,22 +336,12 @@ def _axis_index(grid, x):
     return min(max(j, 0), n - 2)
 
 
-@device
+@device(inline=True)
 def _axis(grid, x):
     """:meth:`WalkTable._weights` of one value: (index, weight)."""
     n = grid.shape[0]
     x = min(max(x, grid[0]), grid[n - 1])
     j = _axis_index(grid, x)
-    return j, (x - grid[j]) / (grid[j + 1] - grid[j])
-
-
-@device
-def _axis_near(grid, x, j):
-    """:func:`_axis` of a value whose index is likely ``j`` (a neighbour's; 0 <= j <= n - 2)."""
-    n = grid.shape[0]
-    x = min(max(x, grid[0]), grid[n - 1])
-    if not (grid[j] <= x and (x < grid[j + 1] or j == n - 2)):
-        j = _axis_index(grid, x)
     return j, (x - grid[j]) / (grid[j + 1] - grid[j])
 
 
@@ -376,7 +366,7 @@ def _domain(phi_w):
     return op, p
 
 
-@device
+@device(inline=True)
 def cell_of(theta_w, phi_w, theta, phi):
     """Symmetry index, flat index of the (θ, φ) cell's first node and the bilinear weights of a
     direction of polar angle ``theta_w`` and azimuth ``phi_w`` (from a face normal's;
@@ -384,7 +374,25 @@ def cell_of(theta_w, phi_w, theta, phi):
     op, p = _domain(phi_w)
     i, s = _axis(theta, theta_w)
     j, t = _axis(phi, p)
-    return op, i * phi.shape[0] + j, (1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t
+    w00, w01, w10, w11 = corner_weights(s, t)
+    return op, i * phi.shape[0] + j, w00, w01, w10, w11
+
+
+@device
+def corner_weights(s, t):
+    """The bilinear weights of a cell's four nodes at fractions ``s`` (θ), ``t`` (φ)."""
+    return (1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t
+
+
+@device
+def bilinear_ratio(w00, w01, w10, w11, n00, n01, n10, n11, d00, d01, d10, d11):
+    """The interpolated ratio Σ w n / Σ w d of a cell's nodes (numerators ``n``, denominators
+    ``d``), 1 where no node has rays (the sum of d is 0)."""
+    num = (((0.0 + w00 * n00) + w01 * n01) + w10 * n10) + w11 * n11
+    den = (((0.0 + w00 * d00) + w01 * d01) + w10 * d10) + w11 * d11
+    if den > 0.0:
+        return num / den
+    return 1.0
 
 
 @kernel
@@ -414,44 +422,14 @@ def ratio_at(theta_w, phi_w, code, theta, phi, esc_perm, flat):
     return ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat)
 
 
-@device
+@device(inline=True)
 def ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat):
     """:func:`ratio_at` given the direction's cell (:func:`cell_of`)."""
     nc = esc_perm.shape[1]
     step = phi.shape[0] * nc
     b = cell * nc + esc_perm[op, code]
-    num = (((0.0 + w00 * flat[b, 0]) + w01 * flat[b + nc, 0]) + w10 * flat[b + step, 0]) + w11 * flat[b + step + nc, 0]
-    den = (((0.0 + w00 * flat[b, 1]) + w01 * flat[b + nc, 1]) + w10 * flat[b + step, 1]) + w11 * flat[b + step + nc, 1]
-    if den > 0.0:
-        return num / den
-    return 1.0
-
-
-@device
-def ratio_near(theta_w, phi_w, code, theta, phi, esc_perm, flat, ci, cv):
-    """:func:`ratio_at` for a run of nearby directions (a lobe's quadrature nodes) and one
-    ``code``: the previous call's cell is tried first, and its nodes' parts are kept
-    (``ci[3]``: symmetry, θ and φ index, ``ci[0]`` = -1 before the run's first call; ``cv[8]``:
-    the parts). The same arithmetic, so the same values."""
-    op, p = _domain(phi_w)
-    i, s = _axis_near(theta, theta_w, max(ci[1], 0))
-    j, t = _axis_near(phi, p, max(ci[2], 0))
-    if op != ci[0] or i != ci[1] or j != ci[2]:
-        nc = esc_perm.shape[1]
-        step = phi.shape[0] * nc
-        b = (i * phi.shape[0] + j) * nc + esc_perm[op, code]
-        for q in range(2):
-            cv[4 * q] = flat[b, q]
-            cv[4 * q + 1] = flat[b + nc, q]
-            cv[4 * q + 2] = flat[b + step, q]
-            cv[4 * q + 3] = flat[b + step + nc, q]
-        ci[0], ci[1], ci[2] = op, i, j
-    w00, w01, w10, w11 = (1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t
-    num = (((0.0 + w00 * cv[0]) + w01 * cv[1]) + w10 * cv[2]) + w11 * cv[3]
-    den = (((0.0 + w00 * cv[4]) + w01 * cv[5]) + w10 * cv[6]) + w11 * cv[7]
-    if den > 0.0:
-        return num / den
-    return 1.0
+    return bilinear_ratio(w00, w01, w10, w11, flat[b, 0], flat[b + nc, 0], flat[b + step, 0], flat[b + step + nc, 0],
+                          flat[b, 1], flat[b + nc, 1], flat[b + step, 1], flat[b + step + nc, 1])
 
 
 @device
