@@ -791,6 +791,9 @@ def test_compiled_visible_areas_and_facet_energies_match_numpy():
     rng = np.random.default_rng(8)
     c = np.concatenate([rng.uniform(-1, 1, 5000), [-1.0, 0.0, 1.0, 1e-3, -1e-3]])
     for alpha in (1e-4, 0.015, 0.05):
+        edge = 6.0 * alpha / np.sqrt(1.0 + 36.0 * alpha * alpha)     # |c| = 6 α s: where the formula ends
+        near = edge * (1.0 + np.arange(-40, 41) * 1e-11)
+        c = np.concatenate([c[:5005], near, -near])
         got = visible_area(c, alpha)
         with numpy_reference():
             ref = visible_area(c, alpha)

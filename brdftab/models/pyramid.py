@@ -264,6 +264,8 @@ def visible_area(c, alpha):
 def _visible_area1(c, alpha):
     """:func:`visible_area` of one cosine."""
     out = c if not c < 0.0 else 0.0
+    if c * c > (36.0 * alpha * alpha) * (1.0 - c * c) * (1.0 + 1e-9):
+        return out        # |c| >= 6 α s for sure (a margin for the rounding): no square root
     s = math.sqrt(max(1.0 - c * c, 0.0))
     if abs(c) < 6.0 * alpha * s:
         a = c / (alpha * s)
