@@ -718,7 +718,10 @@ def _beckmann1(lx, ly, lz, a):
     c2 = lz * lz
     u = lx / a
     v = ly / a
-    return math.exp(-(u * u + v * v) / c2) / (np.pi * a * a * c2 * c2)
+    x = -(u * u + v * v) / c2
+    if x < -746.0:              # exp(x) is 0 (below half the least subnormal): no call into exp's slow path
+        return 0.0
+    return math.exp(x) / (np.pi * a * a * c2 * c2)
 
 
 def _exit_nodes(e, beta):
@@ -1678,6 +1681,17 @@ def _same(a, b):
     return a == b and math.copysign(1.0, a) == math.copysign(1.0, b)
 
 
+@device(inline=True)
+def _incidence_cell(wix, wiy, wiz, rot_c, rot_s, theta, phi, perm, esc_parts, ri):
+    """The walk-table cell of an incidence direction (:func:`~brdftab.models.pyramid_walk.cell_of`,
+    its azimuth from facet 0's normal), and r_k of :meth:`SingleBounce.traced_ratio` into ``ri[4]``."""
+    op, cell, w00, w01, w10, w11 = cell_of(math.acos(min(max(wiz, -1.0), 1.0)),
+                                           math.atan2(rot_c * wiy - rot_s * wix, rot_c * wix + rot_s * wiy), theta, phi)
+    for k in range(4):
+        ri[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, esc_parts)
+    return op, cell, w00, w01, w10, w11
+
+
 def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, mb, depth_t, theta, phi, perm,
                esc_parts, hit_parts, rot_c, rot_s, n_whole, n_cut, gx, gw, t_edges, pf, single_on, multi_on):
     """f of the pairs ``wi``, ``wo[M, 3]`` whose ``state`` is 1 into ``out[M, C]`` (or added, with
@@ -1730,6 +1744,7 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
     op, cell, w00, w01, w10, w11 = 0, 0, 0.0, 0.0, 0.0, 0.0
     g1i, lam_i = 0.0, 0.0
     n_cand = 0
+    have_cell = False
     for i in range(wi.shape[0]):
         if state[i] != 1:
             continue
@@ -1738,11 +1753,7 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
         if not (have and _same(wix, px) and _same(wiy, py) and _same(wiz, pz)):
             have = True
             px, py, pz = wix, wiy, wiz
-            op, cell, w00, w01, w10, w11 = cell_of(math.acos(min(max(wiz, -1.0), 1.0)),
-                                                   math.atan2(rot_c * wiy - rot_s * wix, rot_c * wix + rot_s * wiy),
-                                                   theta, phi)
-            for k in range(4):
-                ri[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, esc_parts)
+            have_cell = False       # the incidence's table cell and r_k: on first need
             s_tot = _projected_area1(wix, wiy, wiz, normals, alpha)
             g1i = min(1.0, wiz / s_tot) if wiz > 0.0 else 0.0
             lam_i = max(s_tot / wiz - 1.0, 0.0)
@@ -1798,6 +1809,10 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
             base = 0.0
             if dk[0] != 0.0 or dk[1] != 0.0 or dk[2] != 0.0 or dk[3] != 0.0:
                 # (else every lobe is 0 here, whatever G: the sum is 0 without ωo's G1 and r_k)
+                if not have_cell:
+                    have_cell = True
+                    op, cell, w00, w01, w10, w11 = _incidence_cell(wix, wiy, wiz, rot_c, rot_s, theta, phi, perm,
+                                                                   esc_parts, ri)
                 _escape_ratios(math.acos(min(max(woz, -1.0), 1.0)),
                                math.atan2(rot_c * woy - rot_s * wox, rot_c * wox + rot_s * woy), theta, phi, perm,
                                esc_parts, ro)
@@ -1812,6 +1827,10 @@ def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, m
             cc = wox * sd[x, 0] + woy * sd[x, 1] + woz * sd[x, 2]
             if not cc > cos_cut:
                 continue
+            if not have_cell:
+                have_cell = True
+                op, cell, w00, w01, w10, w11 = _incidence_cell(wix, wiy, wiz, rot_c, rot_s, theta, phi, perm,
+                                                               esc_parts, ri)
             # the walk's states down to x, the unevaluated ones from the top
             n = 0
             y = x
