@@ -674,7 +674,7 @@ def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_
                 area_o = _projected_area1(ox, oy, oz, normals, a)
                 if g_form == _G_TRACED:
                     g1o = min(1.0, oz / area_o) if oz > 0.0 else 0.0
-                    # r_k(ωo): ratio_at, trying the previous node's cell first and keeping its
+                    # r_k(ωo): ratio_in_cell at cell_of, trying the previous node's cell first and keeping its
                     # nodes' parts (the same arithmetic; written out here, where a call that
                     # takes the table's arrays would count their references at every node)
                     op, p_w = _domain(math.atan2(rot_c * oy - rot_s * ox, rot_c * ox + rot_s * oy))
@@ -1934,7 +1934,8 @@ def _pair_run(fres):
 
         g = globals()
         bindings = []
-        for name in dict.fromkeys(ins.argval for ins in dis.get_instructions(_pair_rows) if ins.opname == "LOAD_GLOBAL"):
+        names = (ins.argval for ins in dis.get_instructions(_pair_rows) if ins.opname == "LOAD_GLOBAL")
+        for name in dict.fromkeys(names):
             value = g.get(name)
             if name in ("math", "np", "_F") or name not in g:
                 continue

@@ -16,7 +16,8 @@ about the diagonal), the fractions of the rays that
 :class:`WalkTable` interpolates them bilinearly in (θ, φ) (θ clamped to the last node),
 relative to the uncorrelated walk's branching (:meth:`WalkTable.ratios`), and relabels the
 faces of the node's symmetry image back to the query's. The interpolation is compiled
-(:func:`interpolate_rows`; :func:`ratio_one` for the kernels of :mod:`~brdftab.models.pyramid`);
+(:func:`interpolate_rows`; :func:`cell_of` and :func:`ratio_in_cell` for the kernels of
+:mod:`~brdftab.models.pyramid`);
 inside :func:`brdftab.brdf.numpy_reference` the numpy code runs instead (the parity tests
 compare the two).
 """
@@ -215,7 +216,7 @@ class WalkTable:
         return cache[key][1]
 
     def ratio_arrays(self, hit=False):
-        """What the compiled kernels need to evaluate the ratios of one code (:func:`ratio_at`):
+        """What the compiled kernels need to evaluate the ratios of one code (:func:`ratio_in_cell`):
         (θ nodes, φ nodes, code maps, flat escape parts[, flat hit parts])."""
         parts = self._parts()
         return (self.theta, self.phi, np.ascontiguousarray(self.esc_perm, dtype=np.int64), self._flat(parts[0])) \
@@ -413,30 +414,17 @@ def interpolate_rows(theta_w, phi_w, columns, flat, theta, phi, esc_perm, out):
                     + w11 * flat[b + step + nc, q]
 
 
-@device
-def ratio_at(theta_w, phi_w, code, theta, phi, esc_perm, flat):
-    """A ratio of :meth:`WalkTable.ratios` for one query ``code`` at a direction of polar angle
-    ``theta_w`` and azimuth ``phi_w`` (``flat``: :meth:`WalkTable.ratio_arrays`' escape parts,
-    or the hit parts), 1 where no node near it sees a ray on the branch (NaN there)."""
-    op, cell, w00, w01, w10, w11 = cell_of(theta_w, phi_w, theta, phi)
-    return ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat)
-
-
 @device(inline=True)
 def ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat):
-    """:func:`ratio_at` given the direction's cell (:func:`cell_of`)."""
+    """A ratio of :meth:`WalkTable.ratios` for one query ``code`` at a direction in the cell
+    ``cell`` (symmetry ``op``, weights ``w``: :func:`cell_of`), ``flat`` :meth:`WalkTable.ratio_arrays`'
+    escape parts or the hit parts; 1 where no node of the cell sees a ray on the branch (NaN
+    there)."""
     nc = esc_perm.shape[1]
     step = phi.shape[0] * nc
     b = cell * nc + esc_perm[op, code]
     return bilinear_ratio(w00, w01, w10, w11, flat[b, 0], flat[b + nc, 0], flat[b + step, 0], flat[b + step + nc, 0],
                           flat[b, 1], flat[b + nc, 1], flat[b + step, 1], flat[b + step + nc, 1])
-
-
-@device
-def ratio_one(wx, wy, wz, code, theta, phi, esc_perm, flat):
-    """:func:`ratio_at` of the direction (wx, wy, wz) (its angles by libm, which may differ from
-    numpy's in the last digit)."""
-    return ratio_at(math.acos(min(max(wz, -1.0), 1.0)), math.atan2(wy, wx), code, theta, phi, esc_perm, flat)
 
 
 @lru_cache(maxsize=1)
