@@ -99,12 +99,17 @@ def kernel(fn=None, *, parallel: bool = False):
     return wrap(fn) if fn is not None else wrap
 
 
-def device(fn):
+def device(fn=None, *, inline: bool = False):
     """Compile ``fn`` as a scalar function the kernels call. LLVM inlines it into them at
-    optimization; numba's own inlining (``inline="always"``, on its typed IR) is not asked
-    for: it gave the same machine code and speed but made the table interpolation kernel take
-    about a minute to compile instead of ten seconds."""
-    return _Lazy(fn, dict(**OPTIONS), True)
+    optimization when both compile in one process; numba's own inlining (``inline="always"``,
+    on its typed IR) is not asked for by default: it gave the same machine code and speed but
+    made the table interpolation kernel take about a minute to compile instead of ten seconds.
+
+    ``inline``: inline it on numba's IR all the same (a kernel compiled while ``fn`` comes from
+    numba's on-disk cache calls it instead: LLVM sees only its machine code)."""
+    def wrap(f):
+        return _Lazy(f, dict(OPTIONS, **({"inline": "always"} if inline else {})), True)
+    return wrap(fn) if fn is not None else wrap
 
 
 def threads() -> int:

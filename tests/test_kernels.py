@@ -551,14 +551,20 @@ def test_tables_evaluate_from_threads_under_any_threading_layer(tmp_path):
     assert run.returncode == 0 and run.stdout.split() == ["True"], run.stdout + run.stderr[-500:]
 
 
-def test_a_model_pickles_after_its_kernel_was_built():
+@pytest.mark.parametrize("name, values", [
+    ("microfacet", dict(distribution="ggx", alpha=0.3, fresnel="conductor", n=0.2, k=3.0)),
+    ("pyramid-microfacet", dict(facet_roughness=0.02, fresnel="conductor", n=3.9, k=0.02)),
+])
+def test_a_model_pickles_after_its_kernel_was_built(name, values):
     """Models travel to worker processes by pickle: the compiled evaluation a model caches is
-    left out of its state and rebuilt there."""
+    left out of its state and rebuilt there (of the model and of its terms)."""
     import pickle
 
-    m = models.create("microfacet", distribution="ggx", alpha=0.3, fresnel="conductor", n=0.2, k=3.0)
+    m = models.create(name, **values)
     wi, wo = _pairs_upper(100)
     f = m.eval(wi, wo)
+    for part in getattr(m, "quadrature_parts", lambda: [])() or []:
+        part.eval(wi, wo)
     back = pickle.loads(pickle.dumps(m))
     np.testing.assert_array_equal(back.eval(wi, wo), f)
     assert back.kernel(None, 1) is not None

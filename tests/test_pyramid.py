@@ -689,14 +689,17 @@ def _near_lobe_pairs(m, rng, n_per_exit=6):
 
 
 def test_compiled_evaluation_matches_numpy():
-    """The model with its compiled helpers (walk-table interpolation, visible areas, facet-lobe
-    energies, the traced walk) against its numpy code, to 1e-12 relative: random pairs, pairs
-    near the mirror direction and near every exit lobe, and the special rows (horizon, NaN,
-    non-unit); every walk, 1 to 3 bounces, φ0 ≠ 0, grey, RGB and spectral Fresnel. Bound 2e-12,
-    not 1e-12: numpy's exp and scipy's erf differ from libm's in the last digit, and the walk
-    continues from a facet with its first hits less what its lobe sends out (P_k − E_k, _share),
-    a difference that magnifies those digits where the lobe sends out most (up to 1.1e-12 seen
-    over 15 sets of pairs; the numpy code's own rounding there is of the same size)."""
+    """The model compiled against its numpy code, to 1e-12 relative: random pairs, pairs near the
+    mirror direction and near every exit lobe, and the special rows (horizon, NaN, non-unit);
+    every walk, 1 to 3 bounces, φ0 ≠ 0, grey, RGB and spectral Fresnel, the model and each of its
+    terms. With the traced walk a pair is one compiled loop (:meth:`BRDF.kernel`: the
+    single-bounce term, the walk along the sequences whose exit lobe reaches ωo, the facet
+    energies those need); the Smith walks compile their helpers (walk-table interpolation, visible
+    areas, facet-lobe energies). Bound 2e-12, not 1e-12: numpy's exp and scipy's erf differ from
+    libm's in the last digit, and the walk continues from a facet with its first hits less what
+    its lobe sends out (P_k − E_k, _share), a difference that magnifies those digits where the
+    lobe sends out most (up to 1.1e-12 seen over 15 sets of pairs; the numpy code's own rounding
+    there is of the same size)."""
     from _kernels import pairs
 
     from brdftab.brdf import numpy_reference
@@ -706,14 +709,28 @@ def test_compiled_evaluation_matches_numpy():
         wi, wo = pairs(i, n=1500)
         wi2, wo2 = _near_lobe_pairs(m, rng)
         wi, wo = np.concatenate([wi, wi2]), np.concatenate([wo, wo2])
-        got = m.eval(wi, wo, lam)
+        lam_r = m.layout.resolve(lam)
+        terms = [m] if m.multi is None else [m, m.single, m.multi]
+        for term in terms:
+            assert (term.kernel(lam_r, m.layout.n_out(lam_r)) is not None) == (m.walk == "traced"), term.describe()
+            got = term.eval(wi, wo, lam)
+            with numpy_reference():
+                ref = term.eval(wi, wo, lam)
+            assert np.array_equal(np.isnan(got), np.isnan(ref))
+            assert np.array_equal(got == 0, ref == 0)
+            ok = ~np.isnan(ref)
+            assert np.count_nonzero(ref[ok] > 0) > 150
+            rel = np.abs(got[ok] - ref[ok]) / np.maximum(np.abs(ref[ok]), 1e-300)
+            assert rel.max() <= 2e-12, (term.describe(), rel.max())
+        # the compiled helpers, which a sum with a term that has no kernel still takes (_eval)
+        u_i, u_o = np.concatenate([wi[:1500], wi2]), np.concatenate([wo[:1500], wo2])   # unit: not the special rows
+        up = (u_i[:, 2] > 1e-6) & (u_o[:, 2] > 1e-6)
+        u_i, u_o = u_i[up], u_o[up]
+        got = m._eval(u_i, u_o, lam_r, m.layout.n_out(lam_r))
         with numpy_reference():
-            ref = m.eval(wi, wo, lam)
-        assert np.array_equal(np.isnan(got), np.isnan(ref))
+            ref = m._eval(u_i, u_o, lam_r, m.layout.n_out(lam_r))
         assert np.array_equal(got == 0, ref == 0)
-        ok = ~np.isnan(ref)
-        assert np.count_nonzero(ref[ok] > 0) > 150
-        rel = np.abs(got[ok] - ref[ok]) / np.maximum(np.abs(ref[ok]), 1e-300)
+        rel = np.abs(got - ref) / np.maximum(np.abs(ref), 1e-300)
         assert rel.max() <= 2e-12, (m.describe(), rel.max())
 
 
@@ -735,6 +752,35 @@ def test_compiled_walk_table_interpolation_is_numpys():
             np.testing.assert_array_equal(a, b)
 
 
+def test_compiled_table_cells_are_numpys():
+    """The compiled cell lookup takes no fmod and no bisection: its remainder of a quarter turn
+    equals fmod's (multiples, neighbours of multiples, ±0) and its node index numpy's
+    searchsorted (nodes, their neighbours, the ends, beyond them)."""
+    import numba
+
+    from brdftab.models.fused import as_device
+
+    quarter = 0.5 * np.pi
+    rng = np.random.default_rng(12)
+    k = np.arange(5.0)[:, None] * quarter
+    a = np.concatenate([k.ravel(), np.nextafter(k, -np.inf).ravel(), np.nextafter(k, np.inf).ravel(), [0.0, -0.0],
+                        rng.uniform(0.0, 2.0 * np.pi, 2000)])
+    a = a[(a >= 0.0) & (a <= 2.0 * np.pi)]
+    fmod = as_device(pyramid_walk._fmod_small)
+    got = numba.njit(lambda x, b: np.array([fmod(v, b) for v in x]))(a, quarter)
+    np.testing.assert_array_equal(got, np.fmod(a, quarter))
+    assert np.array_equal(np.signbit(got), np.signbit(np.fmod(a, quarter)))
+    tab = pyramid_walk.table()
+    axis = as_device(pyramid_walk._axis)
+    index = numba.njit(lambda g, x: np.array([axis(g, v)[0] for v in x]))
+    for grid in (tab.theta, tab.phi):
+        x = np.concatenate([grid, np.nextafter(grid, -np.inf), np.nextafter(grid, np.inf), [-1.0, 4.0, np.nan],
+                            rng.uniform(grid[0], grid[-1], 2000)])
+        ref = np.clip(np.searchsorted(grid, np.clip(x, grid[0], grid[-1]), side="right") - 1, 0, grid.size - 2)
+        ref[np.isnan(x)] = 0
+        np.testing.assert_array_equal(index(grid, x), ref)
+
+
 def test_compiled_visible_areas_and_facet_energies_match_numpy():
     """visible_area and the facet lobes' energies (the coarse rule the evaluation takes, every
     walk's G, the Dirac limit) compiled, against numpy: 1e-12 relative (energies below 1e-12 of the incident energy, from facets seen
@@ -745,6 +791,9 @@ def test_compiled_visible_areas_and_facet_energies_match_numpy():
     rng = np.random.default_rng(8)
     c = np.concatenate([rng.uniform(-1, 1, 5000), [-1.0, 0.0, 1.0, 1e-3, -1e-3]])
     for alpha in (1e-4, 0.015, 0.05):
+        edge = 6.0 * alpha / np.sqrt(1.0 + 36.0 * alpha * alpha)     # |c| = 6 α s: where the formula ends
+        near = edge * (1.0 + np.arange(-40, 41) * 1e-11)
+        c = np.concatenate([c[:5005], near, -near])
         got = visible_area(c, alpha)
         with numpy_reference():
             ref = visible_area(c, alpha)
@@ -783,7 +832,9 @@ def test_compiled_traced_walk_matches_numpy(max_bounces):
 
 def test_evaluation_takes_only_the_facet_energies_it_needs(monkeypatch):
     """f is the same when every facet's lobe energy is computed (the evaluation computes only
-    those of the facets that begin a seen exit's sequence)."""
+    those of the facets that begin a seen exit's sequence): the numpy code and the compiled
+    helpers (``_eval``; the compiled kernel computes an energy where a seen exit needs it by
+    construction, and the parity test holds it to both)."""
     from brdftab.brdf import numpy_reference
     from brdftab.models.pyramid import SingleBounce
 
@@ -793,11 +844,11 @@ def test_evaluation_takes_only_the_facet_energies_it_needs(monkeypatch):
     wi, wo = np.concatenate([wi, _random_dirs(rng, 500)]), np.concatenate([wo, _random_dirs(rng, 500)])
     for ref_mode in (False, True):
         with numpy_reference() if ref_mode else contextlib.nullcontext():
-            some = m.eval(wi, wo)
+            some = m._eval(wi, wo, None, 1)
             full = SingleBounce.facet_energy
             monkeypatch.setattr(SingleBounce, "facet_energy",
                                 lambda self, w, *a, only=None, **k: full(self, w, *a, **k))
-            every = m.eval(wi, wo)
+            every = m._eval(wi, wo, None, 1)
             monkeypatch.undo()
         assert np.count_nonzero(some) > 100
         np.testing.assert_array_equal(some, every)

@@ -164,13 +164,19 @@ With silicon's Fresnel (n + ik = 3.882 + 0.019i) the total reflectance agrees wi
 (tracer / model: 0.097 / 0.095 at normal incidence, 0.206 / 0.207 at 45°/0°, 0.203 / 0.204 at
 45°/25°).
 
-Compiled evaluation. The per-pair and per-incidence work of ``eval`` is compiled (numba, see
-:mod:`brdftab._jit`): the walk table's interpolation, the visible areas, the traced walk's
-sequences, the facet lobes' energies (the coarse rule), the traced single-bounce term and the
-exit lobes' sums; the Smith walks' sequences, the fine rule and Fresnel stay numpy. Inside
+Compiled evaluation. With the traced walk, ``eval`` is one compiled loop over the pairs (numba,
+see :mod:`brdftab._jit`; :func:`_pair_rows`, generated per Fresnel term): per incidence direction
+(kept while consecutive pairs share it, as a grid's do) its walk-table cell, G1, Λ and the face
+sequences its walk can take, found by geometry alone; per pair the single-bounce term, then the
+exit lobes that reach ωo, the walk's probabilities computed only along their sequences and the
+facet energy (the coarse rule) of a sequence's first facet only when one is needed. The terms
+(``quadrature_parts``) evaluate the same way. The Smith walks compile the helpers (walk-table
+interpolation, visible areas, facet energies, exit lobes' sums) around numpy sequences; the fine
+rule stays numpy, and so does a Fresnel term that depends on the whole pair. Inside
 :func:`brdftab.brdf.numpy_reference` the numpy code runs throughout; the two agree to 2e-12
-relative (tests: numpy's exp and scipy's erf differ from libm's in the last digit, and the
-walk's share P_k − E_k of a facet whose lobe sends out most magnifies it).
+relative on the tests' pairs (numpy's exp, arccos and arctan2 and scipy's erf differ from libm's
+in the last digit, and the walk's share P_k − E_k of a facet whose lobe sends out most magnifies
+it).
 
 Limits: equal pyramid heights only; random heights (the Procel distribution of the thesis'
 §4.1) are future work, as are the bevelled edges of real pyramids. The surface is fully
@@ -193,7 +199,7 @@ from ..params import Param
 from ..quadrature import gauss_legendre
 from . import components as C
 from . import pyramid_walk
-from .pyramid_walk import cell_of, ratio_in_cell, ratio_one
+from .pyramid_walk import _axis_index, _domain, bilinear_ratio, cell_of, corner_weights, ratio_in_cell
 from ._registry import register
 from .combinators import Sum
 from .distributions import d_beckmann
@@ -258,6 +264,8 @@ def visible_area(c, alpha):
 def _visible_area1(c, alpha):
     """:func:`visible_area` of one cosine."""
     out = c if not c < 0.0 else 0.0
+    if c * c > (36.0 * alpha * alpha) * (1.0 - c * c) * (1.0 + 1e-9):
+        return out        # |c| >= 6 α s for sure (a margin for the rounding): no square root
     s = math.sqrt(max(1.0 - c * c, 0.0))
     if abs(c) < 6.0 * alpha * s:
         a = c / (alpha * s)
@@ -525,7 +533,7 @@ def _facet_rule(dist, wi, k, level):
 _G_TRACED, _G_CORRELATED, _G_UNCORRELATED = 0, 1, 2
 
 
-@device
+@device(inline=True)
 def _projected_area1(wx, wy, wz, normals, alpha):
     """:meth:`PyramidDistribution.projected_area` of one direction."""
     tot = 0.0
@@ -539,14 +547,13 @@ def _root_or(r, top):
     return r if (math.isfinite(r) and r > 0.0 and r < top) else top
 
 
-@device
-def _ray_roots(wi, fr, a, psi, cf, c1, c2, top, roots):
-    """The cuts of one ray of :func:`_facet_rays` into ``roots[4]``; returns (q0, q1, q2, ⟨ωi, v⟩,
-    v_z)."""
-    cv = math.cos(psi) * c1 + math.sin(psi) * c2
+@device(inline=True)
+def _ray_roots(iz, fr, a, cp, sp, cf, c1, c2, top, roots):
+    """The cuts of one ray of :func:`_facet_rays` (azimuth ψ: ``cp``, ``sp`` = cosψ, sinψ) into
+    ``roots[4]``; returns (q0, q1, q2, ⟨ωi, v⟩, v_z)."""
+    cv = cp * c1 + sp * c2
     fz = fr[2, 2]
-    vz = math.cos(psi) * fr[0, 2]
-    iz = wi[2]
+    vz = cp * fr[0, 2]
     q0 = 2.0 * cf * fz - iz
     q1 = 2.0 * a * (cf * vz + cv * fz)
     q2 = a * a * (2.0 * cv * vz - iz)
@@ -565,82 +572,142 @@ def _facet_energy_rows(wi, kk, lam_i, r_i, frames, normals, alpha, g_form, n_who
     ``kk[P]``) given Λ(ωi) ``lam_i[P]`` and, for the traced G, r_k(ωi) ``r_i[P]``; the rule of
     :func:`_facet_rule` (``n_whole``/``n_cut`` azimuths, Gauss–Legendre ``gx``, ``gw`` on [0, 1],
     panel edges ``t_edges``), the walk table's escape parts for r_k(ωo)."""
+    roots = np.empty(4)
+    edges = np.empty(t_edges.shape[0] + 4)
+    trig = _psi_trig(n_whole, n_cut)
+    cell_i = np.zeros(3, np.int64)
+    cell_v = np.empty(8)
+    for p in range(wi.shape[0]):
+        out[p] = _facet_energy1(wi[p, 0], wi[p, 1], wi[p, 2], kk[p], lam_i[p], r_i[p], frames, normals, alpha, g_form,
+                                n_whole, n_cut, trig, gx, gw, t_edges, rot_c, rot_s, theta, phi, esc_perm, flat, roots,
+                                edges, cell_i, cell_v)
+
+
+@device
+def _psi_trig(n_whole, n_cut):
+    """cosψ and sinψ of the rays of :func:`_facet_energy1` [2, n_whole + n_cut]: the n_whole
+    azimuths of a whole lobe, then the n_cut of a cut one."""
+    trig = np.empty((2, n_whole + n_cut))
+    for r in range(n_whole):
+        psi = 2.0 * np.pi * (r + 0.5) / n_whole
+        trig[0, r] = math.cos(psi)
+        trig[1, r] = math.sin(psi)
+    for r in range(n_cut):
+        psi = 2.0 * np.pi * (r + 0.5) / n_cut
+        trig[0, n_whole + r] = math.cos(psi)
+        trig[1, n_whole + r] = math.sin(psi)
+    return trig
+
+
+@device
+def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_whole, n_cut, trig, gx, gw, t_edges,
+                   rot_c, rot_s, theta, phi, esc_perm, flat, roots, edges, cell_i, cell_v):
+    """One energy of :func:`_facet_energy_rows`: incidence (``w0``, ``w1``, ``w2``), facet ``k``
+    (``trig``: :func:`_psi_trig`; ``roots[4]``, ``edges[len(t_edges) + 4]``, ``cell_i[3]`` (int),
+    ``cell_v[8]``: scratch)."""
+    cell_i[0], cell_i[1], cell_i[2] = -1, 0, 0      # no cell yet for r_k(ωo)
+    nt, n_phi, n_codes = theta.shape[0], phi.shape[0], esc_perm.shape[1]
     a = alpha
     ne = t_edges.shape[0]
     top = t_edges[ne - 1]
-    roots = np.empty(4)
-    edges = np.empty(ne + 4)
-    for p in range(wi.shape[0]):
-        k = kk[p]
-        fr = frames[k]
-        w = wi[p]
-        cf = w[0] * fr[2, 0] + w[1] * fr[2, 1] + w[2] * fr[2, 2]
-        c1 = w[0] * fr[0, 0] + w[1] * fr[0, 1] + w[2] * fr[0, 2]
-        c2 = w[0] * fr[1, 0] + w[1] * fr[1, 1] + w[2] * fr[1, 2]
-        n_psi = n_whole
-        for r in range(n_whole):
-            psi = 2.0 * np.pi * (r + 0.5) / n_whole
-            _ray_roots(w, fr, a, psi, cf, c1, c2, top, roots)
-            if roots[0] < top or roots[2] < top or roots[3] < top:
-                n_psi = n_cut
-                break
-        g1i = 1.0 / (1.0 + lam_i[p])
-        acc = 0.0
-        for r in range(n_psi):
-            psi = 2.0 * np.pi * (r + 0.5) / n_psi
-            q0, q1, q2, cv, vz = _ray_roots(w, fr, a, psi, cf, c1, c2, top, roots)
-            for j in range(ne):
-                edges[j] = t_edges[j]
-            for j in range(4):
-                edges[ne + j] = roots[j]
-            edges.sort()
-            cp, sp = math.cos(psi), math.sin(psi)
-            for j in range(ne + 3):
-                lo, hi = edges[j], edges[j + 1]
-                mid = 0.5 * (lo + hi)
-                if not (hi > lo and cf + a * mid * cv > 0.0 and fr[2, 2] + a * mid * vz > 0.0
-                        and q0 + (q1 + q2 * mid) * mid > 0.0):
+    fr = frames[k]
+    cf = w0 * fr[2, 0] + w1 * fr[2, 1] + w2 * fr[2, 2]
+    c1 = w0 * fr[0, 0] + w1 * fr[0, 1] + w2 * fr[0, 2]
+    c2 = w0 * fr[1, 0] + w1 * fr[1, 1] + w2 * fr[1, 2]
+    n_psi = n_whole
+    first = 0                              # the rays' column in trig
+    for r in range(n_whole):
+        _ray_roots(w2, fr, a, trig[0, r], trig[1, r], cf, c1, c2, top, roots)
+        if roots[0] < top or roots[2] < top or roots[3] < top:
+            n_psi = n_cut
+            first = n_whole
+            break
+    g1i = 1.0 / (1.0 + lam_i)
+    acc = 0.0
+    for r in range(n_psi):
+        cp, sp = trig[0, first + r], trig[1, first + r]
+        q0, q1, q2, cv, vz = _ray_roots(w2, fr, a, cp, sp, cf, c1, c2, top, roots)
+        # the panel ends: the rule's edges (sorted) and the ray's cuts, in order
+        for j in range(ne):
+            edges[j] = t_edges[j]
+        n_e = ne
+        for j in range(4):
+            v = roots[j]
+            x = n_e
+            while x > 0 and edges[x - 1] > v:
+                edges[x] = edges[x - 1]
+                x -= 1
+            edges[x] = v
+            n_e += 1
+        for j in range(ne + 3):
+            lo, hi = edges[j], edges[j + 1]
+            mid = 0.5 * (lo + hi)
+            if not (hi > lo and cf + a * mid * cv > 0.0 and fr[2, 2] + a * mid * vz > 0.0
+                    and q0 + (q1 + q2 * mid) * mid > 0.0):
+                continue
+            for g in range(gx.shape[0]):
+                t = lo + (hi - lo) * gx[g]
+                wt = (hi - lo) * gw[g]
+                rr = a * t
+                inv = 1.0 / math.sqrt(1.0 + rr * rr)
+                hx = (fr[2, 0] + rr * (cp * fr[0, 0] + sp * fr[1, 0])) * inv
+                hy = (fr[2, 1] + rr * (cp * fr[0, 1] + sp * fr[1, 1])) * inv
+                hz = (fr[2, 2] + rr * (cp * fr[0, 2] + sp * fr[1, 2])) * inv
+                c = hx * w0 + hy * w1 + hz * w2
+                ox = 2.0 * c * hx - w0
+                oy = 2.0 * c * hy - w1
+                oz = 2.0 * c * hz - w2
+                if not (c > 0.0 and oz > 1e-12):
                     continue
-                for g in range(gx.shape[0]):
-                    t = lo + (hi - lo) * gx[g]
-                    wt = (hi - lo) * gw[g]
-                    rr = a * t
-                    inv = 1.0 / math.sqrt(1.0 + rr * rr)
-                    hx = (fr[2, 0] + rr * (cp * fr[0, 0] + sp * fr[1, 0])) * inv
-                    hy = (fr[2, 1] + rr * (cp * fr[0, 1] + sp * fr[1, 1])) * inv
-                    hz = (fr[2, 2] + rr * (cp * fr[0, 2] + sp * fr[1, 2])) * inv
-                    c = hx * w[0] + hy * w[1] + hz * w[2]
-                    ox = 2.0 * c * hx - w[0]
-                    oy = 2.0 * c * hy - w[1]
-                    oz = 2.0 * c * hz - w[2]
-                    if not (c > 0.0 and oz > 1e-12):
-                        continue
-                    dwh = wt * (2.0 * np.pi / n_psi) * a * a * t * inv ** 3.0
-                    weight = 4.0 * c * dwh
-                    # own_facet at (ωi, ωo)
-                    bx, by, bz = w[0] + ox, w[1] + oy, w[2] + oz
-                    norm = math.sqrt(bx * bx + by * by + bz * bz)
-                    bx, by, bz = bx / norm, by / norm, bz / norm
-                    if not bz > 0.0:
-                        continue
-                    lx = fr[0, 0] * bx + fr[0, 1] * by + fr[0, 2] * bz
-                    ly = fr[1, 0] * bx + fr[1, 1] * by + fr[1, 2] * bz
-                    lz = fr[2, 0] * bx + fr[2, 1] * by + fr[2, 2] * bz
-                    dk = _beckmann1(lx, ly, lz, a) * FACET_WEIGHT
-                    area_o = _projected_area1(ox, oy, oz, normals, a)
-                    if g_form == _G_TRACED:
-                        g1o = min(1.0, oz / area_o) if oz > 0.0 else 0.0
-                        r_o = ratio_one(rot_c * ox + rot_s * oy, rot_c * oy - rot_s * ox, oz, k, theta, phi,
-                                        esc_perm, flat)
-                        gg = min(g1i * g1o * math.sqrt(r_i[p] * r_o), min(g1i, g1o))
+                dwh = wt * (2.0 * np.pi / n_psi) * a * a * t * inv ** 3.0
+                weight = 4.0 * c * dwh
+                # own_facet at (ωi, ωo)
+                bx, by, bz = w0 + ox, w1 + oy, w2 + oz
+                norm = math.sqrt(bx * bx + by * by + bz * bz)
+                bx, by, bz = bx / norm, by / norm, bz / norm
+                if not bz > 0.0:
+                    continue
+                lx = fr[0, 0] * bx + fr[0, 1] * by + fr[0, 2] * bz
+                ly = fr[1, 0] * bx + fr[1, 1] * by + fr[1, 2] * bz
+                lz = fr[2, 0] * bx + fr[2, 1] * by + fr[2, 2] * bz
+                dk = _beckmann1(lx, ly, lz, a) * FACET_WEIGHT
+                area_o = _projected_area1(ox, oy, oz, normals, a)
+                if g_form == _G_TRACED:
+                    g1o = min(1.0, oz / area_o) if oz > 0.0 else 0.0
+                    # r_k(ωo): ratio_in_cell at cell_of, trying the previous node's cell first and keeping its
+                    # nodes' parts (the same arithmetic; written out here, where a call that
+                    # takes the table's arrays would count their references at every node)
+                    op, p_w = _domain(math.atan2(rot_c * oy - rot_s * ox, rot_c * ox + rot_s * oy))
+                    x = min(max(math.acos(min(max(oz, -1.0), 1.0)), theta[0]), theta[nt - 1])
+                    i = cell_i[1]
+                    if not (theta[i] <= x and (x < theta[i + 1] or i == nt - 2)):
+                        i = _axis_index(theta, x)
+                    s_w = (x - theta[i]) / (theta[i + 1] - theta[i])
+                    y = min(max(p_w, phi[0]), phi[n_phi - 1])
+                    j = cell_i[2]
+                    if not (phi[j] <= y and (y < phi[j + 1] or j == n_phi - 2)):
+                        j = _axis_index(phi, y)
+                    t_w = (y - phi[j]) / (phi[j + 1] - phi[j])
+                    if op != cell_i[0] or i != cell_i[1] or j != cell_i[2]:
+                        b = (i * n_phi + j) * n_codes + esc_perm[op, k]
+                        for q in range(2):
+                            cell_v[4 * q] = flat[b, q]
+                            cell_v[4 * q + 1] = flat[b + n_codes, q]
+                            cell_v[4 * q + 2] = flat[b + n_phi * n_codes, q]
+                            cell_v[4 * q + 3] = flat[b + n_phi * n_codes + n_codes, q]
+                        cell_i[0], cell_i[1], cell_i[2] = op, i, j
+                    w00, w01, w10, w11 = corner_weights(s_w, t_w)
+                    r_o = bilinear_ratio(w00, w01, w10, w11, cell_v[0], cell_v[1], cell_v[2], cell_v[3], cell_v[4],
+                                         cell_v[5], cell_v[6], cell_v[7])
+                    gg = min(g1i * g1o * math.sqrt(r_i * r_o), min(g1i, g1o))
+                else:
+                    lam_o = max(area_o / oz - 1.0, 0.0) if oz > 0.0 else math.inf
+                    if g_form == _G_CORRELATED:
+                        gg = 1.0 / (1.0 + lam_i + lam_o)
                     else:
-                        lam_o = max(area_o / oz - 1.0, 0.0) if oz > 0.0 else math.inf
-                        if g_form == _G_CORRELATED:
-                            gg = 1.0 / (1.0 + lam_i[p] + lam_o)
-                        else:
-                            gg = 1.0 / ((1.0 + lam_i[p]) * (1.0 + lam_o))
-                    acc += dk * gg / (4.0 * w[2]) * weight
-        out[p] = acc
+                        gg = 1.0 / ((1.0 + lam_i) * (1.0 + lam_o))
+                acc += dk * gg / (4.0 * w2) * weight
+    return acc
 
 
 @device
@@ -651,7 +718,10 @@ def _beckmann1(lx, ly, lz, a):
     c2 = lz * lz
     u = lx / a
     v = ly / a
-    return math.exp(-(u * u + v * v) / c2) / (np.pi * a * a * c2 * c2)
+    x = -(u * u + v * v) / c2
+    if x < -746.0:              # exp(x) is 0 (below half the least subnormal): no call into exp's slow path
+        return 0.0
+    return math.exp(x) / (np.pi * a * a * c2 * c2)
 
 
 def _exit_nodes(e, beta):
@@ -965,6 +1035,66 @@ def _traced_walk_compiled(dist, wi, mb, tab, c0, p_first, front) -> _Walk:
                  in_u, in_prob, in_cosines, p_first, first_cont, np.where(front, 0.0, p_first), in_faces0)
 
 
+@device
+def _branch(dx, dy, dz, mass, code, depth, F, alpha, depth_t, op, cell, w00, w01, w10, w11, phi, perm, esc_parts,
+            hit_parts, cd, hit_w, split, p_hit, w_hit):
+    """One state of :func:`_traced_walk`: the ray travelling along (``dx``, ``dy``, ``dz``) after
+    bounce ``depth`` on the face sequence ``code`` with probability ``mass``, the incidence
+    direction's cell of the walk table (:func:`~brdftab.models.pyramid_walk.cell_of`). Returns
+    (escaping probability, continuing probability, whether no face can be hit) and fills
+    ``p_hit[4]`` (the branch to each face) and ``cd[4]`` (⟨d, f_j⟩); ``hit_w``, ``split``,
+    ``w_hit``: scratch [4]."""
+    tot = 0.0
+    for j in range(4):
+        cd[j] = dx * F[j, 0] + dy * F[j, 1] + dz * F[j, 2]
+        hit_w[j] = FACET_WEIGHT * _visible_area1(-cd[j], alpha) if cd[j] < 0.0 else 0.0
+        tot += hit_w[j]
+    none = not tot > 0.0
+    if dz > 0.0:
+        g1 = 1.0 if none else min(dz / _projected_area1(dx, dy, dz, F, alpha), 1.0)
+    else:
+        g1 = 0.0
+    for j in range(4):
+        split[j] = 0.0 if none else hit_w[j] / tot
+        p_hit[j] = (1.0 - g1) * split[j]
+    p_esc = g1
+    if depth <= depth_t:
+        w_esc = p_esc * ratio_in_cell(op, cell, w00, w01, w10, w11, (4 ** depth - 4) // 3 + code, phi, perm,
+                                      esc_parts)
+        if depth < depth_t:
+            s_hit = 0.0
+            for j in range(4):
+                w_hit[j] = p_hit[j] * ratio_in_cell(op, cell, w00, w01, w10, w11,
+                                                    (4 ** (depth + 1) - 4) // 3 + 4 * code + j, phi, perm, hit_parts)
+                s_hit += w_hit[j]
+            t_tot = w_esc + s_hit
+            if t_tot > 0.0:
+                p_esc = w_esc / t_tot
+                for j in range(4):
+                    p_hit[j] = w_hit[j] / t_tot
+        else:
+            p_esc = p_esc if none else min(w_esc, 1.0)
+            for j in range(4):
+                p_hit[j] = (1.0 - p_esc) * split[j]
+    esc = mass * p_esc
+    cont = mass - esc
+    if depth == 1 and cont <= 1e-9 * mass and not none:
+        # the first hit goes on with what its facet's lobe leaves (_share): the hit split
+        ssum = 0.0
+        for j in range(4):
+            ssum += p_hit[j]
+        if ssum <= 0.0:
+            for j in range(4):
+                p_hit[j] = split[j]
+        ssum = 0.0
+        for j in range(4):
+            ssum += p_hit[j]
+        for j in range(4):
+            p_hit[j] = p_hit[j] / ssum
+        cont = mass
+    return esc, cont, none
+
+
 @kernel
 def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, esc_parts, hit_parts, F, alpha, mb,
                       depth_t, n_ex, n_in, first_cont, ex_depth, ex_dirs, ex_prob, ex_code, ex_faces, ex_cos, in_prob,
@@ -1018,58 +1148,12 @@ def _traced_walk_rows(wi, c0, p_first, front, theta_w, phi_w, theta, phi, perm, 
         for depth in range(1, mb + 1):
             nn = 0
             for i in range(ns):
-                dz = sd[i, 2]
-                tot = 0.0
-                for j in range(4):
-                    cd[j] = sd[i, 0] * F[j, 0] + sd[i, 1] * F[j, 1] + sd[i, 2] * F[j, 2]
-                    hit_w[j] = FACET_WEIGHT * _visible_area1(-cd[j], alpha) if cd[j] < 0.0 else 0.0
-                    tot += hit_w[j]
-                none = not tot > 0.0
-                if dz > 0.0:
-                    g1 = 1.0 if none else min(dz / _projected_area1(sd[i, 0], sd[i, 1], dz, F, alpha), 1.0)
-                else:
-                    g1 = 0.0
-                for j in range(4):
-                    split[j] = 0.0 if none else hit_w[j] / tot
-                    p_hit[j] = (1.0 - g1) * split[j]
-                p_esc = g1
                 code = sc[i]
-                if depth <= depth_t:
-                    w_esc = p_esc * ratio_in_cell(op, cell, w00, w01, w10, w11, (4 ** depth - 4) // 3 + code,
-                                                  phi, perm, esc_parts)
-                    if depth < depth_t:
-                        s_hit = 0.0
-                        for j in range(4):
-                            w_hit[j] = p_hit[j] * ratio_in_cell(op, cell, w00, w01, w10, w11,
-                                                                (4 ** (depth + 1) - 4) // 3 + 4 * code + j, phi, perm,
-                                                                hit_parts)
-                            s_hit += w_hit[j]
-                        t_tot = w_esc + s_hit
-                        if t_tot > 0.0:
-                            p_esc = w_esc / t_tot
-                            for j in range(4):
-                                p_hit[j] = w_hit[j] / t_tot
-                    else:
-                        p_esc = p_esc if none else min(w_esc, 1.0)
-                        for j in range(4):
-                            p_hit[j] = (1.0 - p_esc) * split[j]
                 mass = sm[i]
-                esc = mass * p_esc
-                cont = mass - esc
+                esc, cont, none = _branch(sd[i, 0], sd[i, 1], sd[i, 2], mass, code, depth, F, alpha, depth_t, op, cell,
+                                          w00, w01, w10, w11, phi, perm, esc_parts, hit_parts, cd, hit_w, split, p_hit,
+                                          w_hit)
                 if depth == 1:
-                    if cont <= 1e-9 * mass and not none:
-                        ssum = 0.0
-                        for j in range(4):
-                            ssum += p_hit[j]
-                        if ssum <= 0.0:
-                            for j in range(4):
-                                p_hit[j] = split[j]
-                        ssum = 0.0
-                        for j in range(4):
-                            ssum += p_hit[j]
-                        for j in range(4):
-                            p_hit[j] = p_hit[j] / ssum
-                        cont = mass
                     first_cont[u, sf[i, 0]] = 0.0 if none else cont
                 if esc > MIN_PROBABILITY:
                     ex_depth[e + ne] = depth
@@ -1264,6 +1348,9 @@ class SingleBounce(_Term):
         f = self.fres.F(cos_d, lam, n)
         return base[:, None] * f if np.ndim(f) else np.repeat(base[:, None], n, axis=1)
 
+    def _kernel(self, lam, n):
+        return _pair_kernel(self.dist, self.fres, self.walk, 1, lam, n, True, False)
+
     def _traced_base(self, wi, wo):
         """Σ_k f_k cosθo / cosθo (no Fresnel) and cos_d of :meth:`facet_terms` with the traced
         walk's G, compiled (:func:`_traced_single_rows`; the table's angles from numpy)."""
@@ -1388,6 +1475,9 @@ class MultiBounce(_Term):
         wi = np.asarray(wi, float).reshape(-1, 3)
         return _share(_run_walk(self.dist, wi, self.max_bounces, self.walk_name), self.single.facet_energy(wi))
 
+    def _kernel(self, lam, n):
+        return _pair_kernel(self.dist, self.fres, self.walk_name, self.max_bounces, lam, n, False, True)
+
     def lobes(self, wo, e, energy_grey, norm):
         """Grey f cosθo of each exit lobe at directions ``wo[M, 3]`` → [M, S]."""
         return energy_grey[None, :] * _lobe(wo @ e.T, self.beta) / norm[None, :]
@@ -1488,32 +1578,56 @@ def _traced_single_rows(wi, wo, ti, pi, to, po, frames, normals, alpha, theta, p
     ``to``, ``po``: the table's angles of ωi and ωo (numpy's)."""
     ri = np.empty(4)
     ro = np.empty(4)
+    dk = np.empty(4)
     for m in range(wi.shape[0]):
-        hx, hy, hz = wi[m, 0] + wo[m, 0], wi[m, 1] + wo[m, 1], wi[m, 2] + wo[m, 2]
-        norm = math.sqrt(hx * hx + hy * hy + hz * hz)
-        hx, hy, hz = hx / norm, hy / norm, hz / norm
-        cos_d[m] = 0.5 * norm
-        # G1 of both directions (0 at and below the horizon)
-        wz = wi[m, 2]
-        g1i = min(1.0, wz / _projected_area1(wi[m, 0], wi[m, 1], wz, normals, alpha)) if wz > 0.0 else 0.0
-        oz = wo[m, 2]
-        g1o = min(1.0, oz / _projected_area1(wo[m, 0], wo[m, 1], oz, normals, alpha)) if oz > 0.0 else 0.0
-        op, cell, w00, w01, w10, w11 = cell_of(ti[m], pi[m], theta, phi)
-        for k in range(4):
-            ri[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
-        op, cell, w00, w01, w10, w11 = cell_of(to[m], po[m], theta, phi)
-        for k in range(4):
-            ro[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
-        tot = 0.0
-        for k in range(4):
-            fr = frames[k]
-            lx = fr[0, 0] * hx + fr[0, 1] * hy + fr[0, 2] * hz
-            ly = fr[1, 0] * hx + fr[1, 1] * hy + fr[1, 2] * hz
-            lz = fr[2, 0] * hx + fr[2, 1] * hy + fr[2, 2] * hz
-            dk = _beckmann1(lx, ly, lz, alpha) * FACET_WEIGHT if hz > 0.0 else 0.0
-            g = min(g1i * g1o * math.sqrt(ri[k] * ro[k]), min(g1i, g1o))
-            tot += dk * g / (4.0 * wz)
-        base[m] = tot / oz
+        g1i = _g1(wi[m, 0], wi[m, 1], wi[m, 2], normals, alpha)
+        g1o = _g1(wo[m, 0], wo[m, 1], wo[m, 2], normals, alpha)
+        _escape_ratios(ti[m], pi[m], theta, phi, perm, flat, ri)
+        _escape_ratios(to[m], po[m], theta, phi, perm, flat, ro)
+        cos_d[m] = _facet_lobes(wi[m, 0], wi[m, 1], wi[m, 2], wo[m, 0], wo[m, 1], wo[m, 2], frames, alpha, dk)
+        base[m] = _traced_single_sum(dk, wi[m, 2], wo[m, 2], g1i, g1o, ri, ro)
+
+
+@device(inline=True)
+def _g1(wx, wy, wz, normals, alpha):
+    """:meth:`PyramidDistribution.G1` of one direction (0 at and below the horizon)."""
+    return min(1.0, wz / _projected_area1(wx, wy, wz, normals, alpha)) if wz > 0.0 else 0.0
+
+
+@device(inline=True)
+def _escape_ratios(theta_w, phi_w, theta, phi, perm, flat, r):
+    """r_k of :meth:`SingleBounce.traced_ratio` for the four facets into ``r[4]``, at the table
+    angles ``theta_w``, ``phi_w`` of a direction (``flat``: the escape parts)."""
+    op, cell, w00, w01, w10, w11 = cell_of(theta_w, phi_w, theta, phi)
+    for k in range(4):
+        r[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, flat)
+
+
+@device(inline=True)
+def _facet_lobes(wix, wiy, wiz, wox, woy, woz, frames, alpha, dk):
+    """D_k(h) a_k of the four facets at the pair's half vector into ``dk[4]`` (0 where h_z <= 0);
+    returns cos_d."""
+    hx, hy, hz = wix + wox, wiy + woy, wiz + woz
+    norm = math.sqrt(hx * hx + hy * hy + hz * hz)
+    hx, hy, hz = hx / norm, hy / norm, hz / norm
+    for k in range(4):
+        fr = frames[k]
+        lx = fr[0, 0] * hx + fr[0, 1] * hy + fr[0, 2] * hz
+        ly = fr[1, 0] * hx + fr[1, 1] * hy + fr[1, 2] * hz
+        lz = fr[2, 0] * hx + fr[2, 1] * hy + fr[2, 2] * hz
+        dk[k] = _beckmann1(lx, ly, lz, alpha) * FACET_WEIGHT if hz > 0.0 else 0.0
+    return 0.5 * norm
+
+
+@device(inline=True)
+def _traced_single_sum(dk, wiz, woz, g1i, g1o, ri, ro):
+    """Σ_k f_k cosθo / cosθo of :func:`_traced_single_rows` given :func:`_facet_lobes`' D_k a_k and
+    G1 and r_k of both directions."""
+    tot = 0.0
+    for k in range(4):
+        g = min(g1i * g1o * math.sqrt(ri[k] * ro[k]), min(g1i, g1o))
+        tot += dk[k] * g / (4.0 * wiz)
+    return tot / woz
 
 
 @kernel
@@ -1543,6 +1657,320 @@ def _exit_lobe_rows(wo, inv, starts, counts, e, norm, energy, cos_cut, beta, out
             val = lobe / (norm[x] * wo[i, 2])
             for ch in range(nc):
                 out[i, ch] += val * energy[x, ch]
+
+
+# --------------------------------------------------------------------------------------------
+# The compiled evaluation: every term of one pair in one loop (BRDF.kernel)
+#
+# Per incidence direction (reused while consecutive pairs share it, as a grid's do): its cell of
+# the walk table, G1, Λ and r_k, and the face sequences its walk can take, by geometry alone
+# (a face j is a branch only where ⟨d, f_j⟩ < 0). Per pair: the single-bounce term, then the
+# sequences of two or more bounces whose exit lobe reaches ωo; the walk's probabilities are
+# computed only along the sequences a pair sees (each state once per incidence, with
+# :func:`_branch`, the compiled walk's arithmetic), and the facet energies of their first
+# facets (:func:`_facet_energy1`, the coarse rule) only when one is needed (:func:`_share`).
+
+#: Stands for the Fresnel term's scalar form (``jit_F``) in :func:`_pair_rows`, which is compiled
+#: in a generated module that binds it (:func:`_pair_run`).
+_F = None
+
+
+@device
+def _same(a, b):
+    """Whether two finite floats are the same number, sign of zero included."""
+    return a == b and math.copysign(1.0, a) == math.copysign(1.0, b)
+
+
+@device(inline=True)
+def _incidence_cell(wix, wiy, wiz, rot_c, rot_s, theta, phi, perm, esc_parts, ri):
+    """The walk-table cell of an incidence direction (:func:`~brdftab.models.pyramid_walk.cell_of`,
+    its azimuth from facet 0's normal), and r_k of :meth:`SingleBounce.traced_ratio` into ``ri[4]``."""
+    op, cell, w00, w01, w10, w11 = cell_of(math.acos(min(max(wiz, -1.0), 1.0)),
+                                           math.atan2(rot_c * wiy - rot_s * wix, rot_c * wix + rot_s * wiy), theta, phi)
+    for k in range(4):
+        ri[k] = ratio_in_cell(op, cell, w00, w01, w10, w11, k, phi, perm, esc_parts)
+    return op, cell, w00, w01, w10, w11
+
+
+def _pair_rows(wi, wo, state, out, add, frames, normals, alpha, beta, cos_cut, mb, depth_t, theta, phi, perm,
+               esc_parts, hit_parts, rot_c, rot_s, n_whole, n_cut, gx, gw, t_edges, pf, single_on, multi_on):
+    """f of the pairs ``wi``, ``wo[M, 3]`` whose ``state`` is 1 into ``out[M, C]`` (or added, with
+    ``add``): the traced walk's single-bounce term (``single_on``) plus its exit lobes
+    (``multi_on``), as :meth:`PyramidMicrofacet._eval` computes them."""
+    nc = out.shape[1]
+    cap = 0                                 # states of one incidence: 4 first hits, then <= 3 faces each
+    level = 4
+    for _ in range(mb):
+        cap += level
+        level *= 3
+    sd = np.empty((cap, 3))                 # travelling direction after the state's bounce
+    parent = np.empty(cap, np.int64)
+    root = np.empty(cap, np.int64)          # the state of the sequence's first hit
+    face = np.empty(cap, np.int64)
+    sdepth = np.empty(cap, np.int64)
+    scode = np.empty(cap, np.int64)
+    scos = np.empty(cap)                    # local cosine of the state's bounce
+    status = np.zeros(cap, np.int64)        # 0: not evaluated, 1: on the walk, 2: not on it
+    smass = np.empty(cap)
+    sesc = np.empty(cap)
+    sgo = np.zeros(cap, np.bool_)
+    sphit = np.empty((cap, 4))
+    snorm = np.empty(cap)
+    cand = np.empty(cap, np.int64)          # exits of two or more bounces, in the walk's order
+    chain = np.empty(mb, np.int64)
+    c0 = np.empty(4)
+    area = np.empty(4)
+    p_first = np.empty(4)
+    first_cont = np.zeros(4)
+    energy1 = np.zeros(4)
+    have_e = np.zeros(4, np.bool_)
+    ri = np.empty(4)
+    ro = np.empty(4)
+    dk = np.empty(4)
+    cd = np.empty(4)
+    hit_w = np.empty(4)
+    split = np.empty(4)
+    p_hit = np.empty(4)
+    w_hit = np.empty(4)
+    roots = np.empty(4)
+    edges = np.empty(t_edges.shape[0] + 4)
+    trig = _psi_trig(n_whole, n_cut)
+    cell_i = np.zeros(3, np.int64)
+    cell_v = np.empty(8)
+    single = np.zeros(nc)
+    multi = np.zeros(nc)
+    have = False
+    px, py, pz = 0.0, 0.0, 0.0
+    op, cell, w00, w01, w10, w11 = 0, 0, 0.0, 0.0, 0.0, 0.0
+    g1i, lam_i = 0.0, 0.0
+    n_cand = 0
+    have_cell = False
+    for i in range(wi.shape[0]):
+        if state[i] != 1:
+            continue
+        wix, wiy, wiz = wi[i, 0], wi[i, 1], wi[i, 2]
+        wox, woy, woz = wo[i, 0], wo[i, 1], wo[i, 2]
+        if not (have and _same(wix, px) and _same(wiy, py) and _same(wiz, pz)):
+            have = True
+            px, py, pz = wix, wiy, wiz
+            have_cell = False       # the incidence's table cell and r_k: on first need
+            s_tot = _projected_area1(wix, wiy, wiz, normals, alpha)
+            g1i = min(1.0, wiz / s_tot) if wiz > 0.0 else 0.0
+            lam_i = max(s_tot / wiz - 1.0, 0.0)
+            n_cand = 0
+            if multi_on:
+                s_tot = 0.0
+                for k in range(4):
+                    c0[k] = wix * normals[k, 0] + wiy * normals[k, 1] + wiz * normals[k, 2]
+                    area[k] = FACET_WEIGHT * _visible_area1(c0[k], alpha)
+                    s_tot += area[k]
+                n = 0
+                for k in range(4):
+                    p_first[k] = area[k] / s_tot
+                    first_cont[k] = 0.0
+                    have_e[k] = False
+                    if c0[k] > 0.0 and p_first[k] > MIN_PROBABILITY:
+                        dot = -wix * normals[k, 0] + -wiy * normals[k, 1] + -wiz * normals[k, 2]
+                        sd[n, 0] = -wix - 2.0 * dot * normals[k, 0]
+                        sd[n, 1] = -wiy - 2.0 * dot * normals[k, 1]
+                        sd[n, 2] = -wiz - 2.0 * dot * normals[k, 2]
+                        parent[n] = -1
+                        root[n] = n
+                        face[n] = k
+                        sdepth[n] = 1
+                        scode[n] = k
+                        scos[n] = c0[k]
+                        n += 1
+                a = 0
+                for depth in range(1, mb):
+                    b = n
+                    for s in range(a, b):
+                        for j in range(4):
+                            dot = sd[s, 0] * normals[j, 0] + sd[s, 1] * normals[j, 1] + sd[s, 2] * normals[j, 2]
+                            if dot < 0.0:
+                                for x in range(3):
+                                    sd[n, x] = sd[s, x] - 2.0 * dot * normals[j, x]
+                                parent[n] = s
+                                root[n] = root[s]
+                                face[n] = j
+                                sdepth[n] = depth + 1
+                                scode[n] = 4 * scode[s] + j
+                                scos[n] = -dot
+                                n += 1
+                    a = b
+                for s in range(n):
+                    status[s] = 0
+                    snorm[s] = math.nan
+                    if sdepth[s] >= 2 and sd[s, 2] > 0.0:
+                        cand[n_cand] = s
+                        n_cand += 1
+        if single_on:
+            cos_d = _facet_lobes(wix, wiy, wiz, wox, woy, woz, frames, alpha, dk)
+            base = 0.0
+            if dk[0] != 0.0 or dk[1] != 0.0 or dk[2] != 0.0 or dk[3] != 0.0:
+                # (else every lobe is 0 here, whatever G: the sum is 0 without ωo's G1 and r_k)
+                if not have_cell:
+                    have_cell = True
+                    op, cell, w00, w01, w10, w11 = _incidence_cell(wix, wiy, wiz, rot_c, rot_s, theta, phi, perm,
+                                                                   esc_parts, ri)
+                _escape_ratios(math.acos(min(max(woz, -1.0), 1.0)),
+                               math.atan2(rot_c * woy - rot_s * wox, rot_c * wox + rot_s * woy), theta, phi, perm,
+                               esc_parts, ro)
+                g1o = _g1(wox, woy, woz, normals, alpha)
+                base = _traced_single_sum(dk, wiz, woz, g1i, g1o, ri, ro)
+            for c in range(nc):
+                single[c] = base * _F(wix, wiy, wiz, wox, woy, woz, cos_d, pf, c)
+        for c in range(nc):
+            multi[c] = 0.0
+        for q in range(n_cand):
+            x = cand[q]
+            cc = wox * sd[x, 0] + woy * sd[x, 1] + woz * sd[x, 2]
+            if not cc > cos_cut:
+                continue
+            if not have_cell:
+                have_cell = True
+                op, cell, w00, w01, w10, w11 = _incidence_cell(wix, wiy, wiz, rot_c, rot_s, theta, phi, perm,
+                                                               esc_parts, ri)
+            # the walk's states down to x, the unevaluated ones from the top
+            n = 0
+            y = x
+            while y >= 0:
+                chain[n] = y
+                n += 1
+                y = parent[y]
+            for t in range(n - 1, -1, -1):
+                y = chain[t]
+                if status[y] != 0:
+                    continue
+                p = parent[y]
+                if p < 0:
+                    mass = p_first[face[y]]
+                    on = True
+                else:
+                    mass = smass[p] * sphit[p, face[y]]
+                    on = status[p] == 1 and sgo[p] and sphit[p, face[y]] > 0.0 and mass > MIN_PROBABILITY
+                if not on:
+                    status[y] = 2
+                    continue
+                esc, cont, none = _branch(sd[y, 0], sd[y, 1], sd[y, 2], mass, scode[y], sdepth[y], normals, alpha,
+                                          depth_t, op, cell, w00, w01, w10, w11, phi, perm, esc_parts, hit_parts, cd,
+                                          hit_w, split, p_hit, w_hit)
+                status[y] = 1
+                smass[y] = mass
+                sesc[y] = esc
+                sgo[y] = cont > MIN_PROBABILITY and not none
+                for j in range(4):
+                    sphit[y, j] = p_hit[j]
+                if p < 0:
+                    first_cont[face[y]] = 0.0 if none else cont
+            if status[x] != 1 or not sesc[x] > MIN_PROBABILITY:
+                continue
+            # the walk goes on from the first hit with what its facet's lobe leaves (_share)
+            k0 = face[root[x]]
+            if not have_e[k0]:
+                have_e[k0] = True
+                energy1[k0] = 0.0
+                if area[k0] > MIN_PROBABILITY:
+                    energy1[k0] = _facet_energy1(wix, wiy, wiz, k0, lam_i, ri[k0], frames, normals, alpha, _G_TRACED,
+                                                 n_whole, n_cut, trig, gx, gw, t_edges, rot_c, rot_s, theta, phi, perm,
+                                                 esc_parts, roots, edges, cell_i, cell_v)
+            left = max(p_first[k0] - energy1[k0], 0.0)
+            scale = left / first_cont[k0] if first_cont[k0] > 0.0 else 0.0
+            prob = sesc[x] * scale
+            if math.isnan(snorm[x]):
+                ez = sd[x, 2]
+                snorm[x] = 1.0 - 0.5 * math.erfc(ez / math.sqrt(max(1.0 - ez * ez, 0.0)) / beta)
+            t2 = (1.0 - cc * cc) / (cc * cc * beta * beta)
+            lobe = math.exp(-t2) / (np.pi * beta * beta * cc * cc * cc) if cc > 0.0 else 0.0
+            val = lobe / (snorm[x] * woz)
+            for c in range(nc):
+                fp = 1.0
+                for t in range(n - 1, -1, -1):
+                    fp = fp * _F(wix, wiy, wiz, wox, woy, woz, scos[chain[t]], pf, c)
+                multi[c] += val * (prob * fp)
+        for c in range(nc):
+            if single_on and multi_on:
+                v = single[c] + multi[c]
+            elif single_on:
+                v = single[c]
+            else:
+                v = multi[c]
+            out[i, c] = out[i, c] + v if add else v
+
+
+_PAIR_MODULE = '''\
+# Generated by brdftab.models.pyramid (do not edit): the pyramid model with the {fres!r} Fresnel term;
+# sources {digest}; constants {constants}
+import math
+
+import numba
+import numpy as np
+
+from brdftab._jit import OPTIONS
+from brdftab.models import pyramid as _pyramid
+from brdftab.models.components import get
+from brdftab.models.fused import as_device
+
+_F = as_device(get("fresnel", {fres!r}).jit_F)
+{bindings}
+
+
+@numba.njit(**OPTIONS)
+{body}'''
+
+_PAIR_RUNS: dict = {}
+
+
+def _pair_run(fres):
+    """:func:`_pair_rows` compiled with the Fresnel term ``fres``'s scalar form, from a generated
+    module named by a hash of its text (the sources of every function it inlines and the
+    constants they read: numba's cache alone sees only the generated file)."""
+    key = type(fres)
+    if key not in _PAIR_RUNS:
+        import dis
+        import inspect
+
+        from .._jit import _Lazy, generated_module, source_hash
+
+        g = globals()
+        bindings = []
+        names = (ins.argval for ins in dis.get_instructions(_pair_rows) if ins.opname == "LOAD_GLOBAL")
+        for name in dict.fromkeys(names):
+            value = g.get(name)
+            if name in ("math", "np", "_F") or name not in g:
+                continue
+            if isinstance(value, _Lazy) or hasattr(value, "py_func"):
+                bindings.append(f"{name} = as_device(_pyramid.{name})")
+            else:   # a constant: its value is part of the text
+                bindings.append(f"{name} = {float(value) if isinstance(value, float) else int(value)!r}")
+        constants = repr(tuple(float(v) for v in (FACET_WEIGHT, MIN_PROBABILITY, _SQRT_PI, _G_TRACED, _G_CORRELATED)))
+        source = _PAIR_MODULE.format(fres=fres.name, digest=source_hash(_pair_rows, fres.jit_F), constants=constants,
+                                     bindings="\n".join(bindings), body=inspect.getsource(_pair_rows))
+        _PAIR_RUNS[key] = generated_module("pyramid", source)._pair_rows
+    return _PAIR_RUNS[key]
+
+
+def _pair_kernel(dist, fres, walk, max_bounces, lam, n, single, multi):
+    """The compiled evaluation (:meth:`~brdftab.brdf.BRDF.kernel`) of the pyramid model's
+    single-bounce term (``single``) and/or its exit lobes (``multi``), or None: for the Smith
+    walks (numpy), and for a Fresnel term that depends on the whole pair or has no scalar form."""
+    if walk != "traced" or fres.depends == "pair" or fres.jit_F is None:
+        return None
+    run = _pair_run(fres)
+    theta, phi, perm, esc_parts, hit_parts = pyramid_walk.table().ratio_arrays(hit=True)
+    n_whole, n_cut, nodes, t_edges = _COARSE
+    gx, gw = gauss_legendre(nodes, 0.0, 1.0)
+    beta = 2.0 * dist.alpha                                   # as MultiBounce's
+    cos_cut = 1.0 / np.sqrt(1.0 + _CUT * beta ** 2)
+    args = (np.ascontiguousarray(dist.frames), np.ascontiguousarray(dist.normals), float(dist.alpha), float(beta),
+            float(cos_cut), int(max_bounces if multi else 1), int(pyramid_walk.table().depth), theta, phi, perm,
+            esc_parts, hit_parts, float(np.cos(dist.phi0)), float(np.sin(dist.phi0)), int(n_whole), int(n_cut),
+            np.ascontiguousarray(gx), np.ascontiguousarray(gw), np.ascontiguousarray(t_edges, dtype=float),
+            np.ascontiguousarray(fres.jit_params(lam, n)), bool(single), bool(multi))
+
+    def evaluate(wi, wo, state, out, add):
+        run(wi, wo, state, out, add, *args)
+    return evaluate
 
 
 # --------------------------------------------------------------------------------------------
@@ -1656,6 +2084,10 @@ class PyramidMicrofacet(Model):
 
     def _eval(self, wi, wo, lam, n):
         return self.terms._eval(wi, wo, lam, n)
+
+    def _kernel(self, lam, n):
+        """Both terms of a pair in one compiled loop (:func:`_pair_rows`; the traced walk)."""
+        return _pair_kernel(self.dist, self.fres, self.walk, self.max_bounces, lam, n, True, self.multi is not None)
 
     # -- sequences ---------------------------------------------------------------------------
 

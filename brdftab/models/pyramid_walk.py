@@ -16,7 +16,8 @@ about the diagonal), the fractions of the rays that
 :class:`WalkTable` interpolates them bilinearly in (θ, φ) (θ clamped to the last node),
 relative to the uncorrelated walk's branching (:meth:`WalkTable.ratios`), and relabels the
 faces of the node's symmetry image back to the query's. The interpolation is compiled
-(:func:`interpolate_rows`; :func:`ratio_one` for the kernels of :mod:`~brdftab.models.pyramid`);
+(:func:`interpolate_rows`; :func:`cell_of` and :func:`ratio_in_cell` for the kernels of
+:mod:`~brdftab.models.pyramid`);
 inside :func:`brdftab.brdf.numpy_reference` the numpy code runs instead (the parity tests
 compare the two).
 """
@@ -215,7 +216,7 @@ class WalkTable:
         return cache[key][1]
 
     def ratio_arrays(self, hit=False):
-        """What the compiled kernels need to evaluate the ratios of one code (:func:`ratio_at`):
+        """What the compiled kernels need to evaluate the ratios of one code (:func:`ratio_in_cell`):
         (θ nodes, φ nodes, code maps, flat escape parts[, flat hit parts])."""
         parts = self._parts()
         return (self.theta, self.phi, np.ascontiguousarray(self.esc_perm, dtype=np.int64), self._flat(parts[0])) \
@@ -291,9 +292,9 @@ def _np_mod(a, b):
 
 
 @device
-def _np_floordiv(a, b):
-    """numpy's ``a // b`` of floats (b > 0), which rounds the quotient as its divmod does."""
-    m = np.fmod(a, b)
+def _floordiv_rest(a, b, m):
+    """numpy's ``a // b`` of floats (b > 0), which rounds the quotient as its divmod does, given
+    m = fmod(a, b)."""
     div = (a - m) / b
     if m != 0.0 and m < 0.0:
         div -= 1.0
@@ -306,37 +307,93 @@ def _np_floordiv(a, b):
 
 
 @device
+def _fmod_small(a, b):
+    """fmod(a, b) for 0 <= a <= 4b (b > 0), exact as fmod is: by subtractions of b and 2b, each
+    exact (Sterbenz: the operands are within a factor 2)."""
+    if a < b:
+        return a
+    if a < 2.0 * b:
+        return a - b
+    r = a - 2.0 * b
+    if r < b:
+        return r
+    if r < 2.0 * b:
+        return r - b
+    return r - 2.0 * b
+
+
+@device(inline=True)
+def _axis_index(grid, x):
+    """The index of :func:`_axis` for ``x`` already clamped to the nodes: the last node at or
+    below x (numpy's ``searchsorted(side="right") - 1``, at most the last cell's), found from a
+    guess by the mean step, stepping to the neighbours (the nodes increase)."""
+    n = grid.shape[0]
+    g = (x - grid[0]) / (grid[n - 1] - grid[0]) * (n - 1)
+    j = int(g) if (g >= 0.0 and g < n) else 0
+    while j > 0 and grid[j] > x:
+        j -= 1
+    while j < n - 1 and grid[j + 1] <= x:
+        j += 1
+    return min(max(j, 0), n - 2)
+
+
+@device(inline=True)
 def _axis(grid, x):
     """:meth:`WalkTable._weights` of one value: (index, weight)."""
     n = grid.shape[0]
     x = min(max(x, grid[0]), grid[n - 1])
-    lo, hi = 0, n
-    while lo < hi:                      # searchsorted(side="right")
-        mid = (lo + hi) // 2
-        if grid[mid] <= x:
-            lo = mid + 1
-        else:
-            hi = mid
-    j = min(max(lo - 1, 0), n - 2)
+    j = _axis_index(grid, x)
     return j, (x - grid[j]) / (grid[j + 1] - grid[j])
 
 
 @device
-def cell_of(theta_w, phi_w, theta, phi):
-    """Symmetry index, flat index of the (θ, φ) cell's first node and the bilinear weights of a
-    direction of polar angle ``theta_w`` and azimuth ``phi_w`` (from a face normal's;
-    :func:`domain_op`)."""
+def _domain(phi_w):
+    """The symmetry index of :func:`domain_op` and the azimuth it maps ``phi_w`` to. (numpy's mod
+    and floor division of an azimuth within ±2π take no fmod: fmod(φ, 2π) is φ there, and
+    :func:`_fmod_small` gives the quarter's remainder.)"""
     quarter = 0.5 * np.pi
-    p = _np_mod(phi_w, 2.0 * np.pi)
-    r = min(int(_np_floordiv(p, quarter)), 3)
+    two_pi = 2.0 * np.pi
+    if -two_pi < phi_w < two_pi:
+        p = phi_w + two_pi if phi_w < 0.0 else phi_w
+    else:
+        p = _np_mod(phi_w, two_pi)
+    m = _fmod_small(p, quarter) if (p >= 0.0 and p <= 4.0 * quarter) else np.fmod(p, quarter)
+    r = min(int(_floordiv_rest(p, quarter, m)), 3)
     p = p - r * quarter
     m = p > 0.5 * quarter
     op = 2 * r + (1 if m else 0)
     if m:
         p = quarter - p
+    return op, p
+
+
+@device(inline=True)
+def cell_of(theta_w, phi_w, theta, phi):
+    """Symmetry index, flat index of the (θ, φ) cell's first node and the bilinear weights of a
+    direction of polar angle ``theta_w`` and azimuth ``phi_w`` (from a face normal's;
+    :func:`domain_op`)."""
+    op, p = _domain(phi_w)
     i, s = _axis(theta, theta_w)
     j, t = _axis(phi, p)
-    return op, i * phi.shape[0] + j, (1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t
+    w00, w01, w10, w11 = corner_weights(s, t)
+    return op, i * phi.shape[0] + j, w00, w01, w10, w11
+
+
+@device
+def corner_weights(s, t):
+    """The bilinear weights of a cell's four nodes at fractions ``s`` (θ), ``t`` (φ)."""
+    return (1 - s) * (1 - t), (1 - s) * t, s * (1 - t), s * t
+
+
+@device
+def bilinear_ratio(w00, w01, w10, w11, n00, n01, n10, n11, d00, d01, d10, d11):
+    """The interpolated ratio Σ w n / Σ w d of a cell's nodes (numerators ``n``, denominators
+    ``d``), 1 where no node has rays (the sum of d is 0)."""
+    num = (((0.0 + w00 * n00) + w01 * n01) + w10 * n10) + w11 * n11
+    den = (((0.0 + w00 * d00) + w01 * d01) + w10 * d10) + w11 * d11
+    if den > 0.0:
+        return num / den
+    return 1.0
 
 
 @kernel
@@ -357,33 +414,17 @@ def interpolate_rows(theta_w, phi_w, columns, flat, theta, phi, esc_perm, out):
                     + w11 * flat[b + step + nc, q]
 
 
-@device
-def ratio_at(theta_w, phi_w, code, theta, phi, esc_perm, flat):
-    """A ratio of :meth:`WalkTable.ratios` for one query ``code`` at a direction of polar angle
-    ``theta_w`` and azimuth ``phi_w`` (``flat``: :meth:`WalkTable.ratio_arrays`' escape parts,
-    or the hit parts), 1 where no node near it sees a ray on the branch (NaN there)."""
-    op, cell, w00, w01, w10, w11 = cell_of(theta_w, phi_w, theta, phi)
-    return ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat)
-
-
-@device
+@device(inline=True)
 def ratio_in_cell(op, cell, w00, w01, w10, w11, code, phi, esc_perm, flat):
-    """:func:`ratio_at` given the direction's cell (:func:`cell_of`)."""
+    """A ratio of :meth:`WalkTable.ratios` for one query ``code`` at a direction in the cell
+    ``cell`` (symmetry ``op``, weights ``w``: :func:`cell_of`), ``flat`` :meth:`WalkTable.ratio_arrays`'
+    escape parts or the hit parts; 1 where no node of the cell sees a ray on the branch (NaN
+    there)."""
     nc = esc_perm.shape[1]
     step = phi.shape[0] * nc
     b = cell * nc + esc_perm[op, code]
-    num = (((0.0 + w00 * flat[b, 0]) + w01 * flat[b + nc, 0]) + w10 * flat[b + step, 0]) + w11 * flat[b + step + nc, 0]
-    den = (((0.0 + w00 * flat[b, 1]) + w01 * flat[b + nc, 1]) + w10 * flat[b + step, 1]) + w11 * flat[b + step + nc, 1]
-    if den > 0.0:
-        return num / den
-    return 1.0
-
-
-@device
-def ratio_one(wx, wy, wz, code, theta, phi, esc_perm, flat):
-    """:func:`ratio_at` of the direction (wx, wy, wz) (its angles by libm, which may differ from
-    numpy's in the last digit)."""
-    return ratio_at(math.acos(min(max(wz, -1.0), 1.0)), math.atan2(wy, wx), code, theta, phi, esc_perm, flat)
+    return bilinear_ratio(w00, w01, w10, w11, flat[b, 0], flat[b + nc, 0], flat[b + step, 0], flat[b + step + nc, 0],
+                          flat[b, 1], flat[b + nc, 1], flat[b + step, 1], flat[b + step + nc, 1])
 
 
 @lru_cache(maxsize=1)
