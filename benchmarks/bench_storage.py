@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 import brdftab
-from _timing import GOLD, hemisphere_pairs  # benchmarks/ is on sys.path when run as a script
+from _timing import GOLD, hemisphere_pairs, timeit  # benchmarks/ is on sys.path when run as a script
 from brdftab.formats import netcdf as nc_format
 from brdftab.formats import zarr as zarr_format
 from brdftab.grids import RusinkiewiczGrid, merl_grid
@@ -65,13 +65,7 @@ def size_of(path: Path):
 
 
 def best(fn, repeat):
-    fn()
-    times = []
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return min(times)
+    return timeit(fn, repeat)[0]
 
 
 def measure(table, folder: Path, label: str, ext: str, repeat: int, options: dict, setup=lambda: None):

@@ -1,7 +1,6 @@
 """Tables larger than the memory budget: tabulated and written block by block, read, evaluated
 and checked without being loaded whole."""
 
-import json
 import os
 import subprocess
 import sys

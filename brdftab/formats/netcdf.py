@@ -160,15 +160,21 @@ def _cf_layout(ds):
         chars[target] = {"dtype": "S1", "char_dim_name": f"{target}_strlen"}
     for name in out.variables:
         out[name].attrs = _attrs(out[name].attrs)
-    attrs = _attrs(out.attrs)
-    attrs["Conventions"] = "CF-1.10"
-    if not str(attrs.get("history", "")).strip():
+    out.attrs = cf_global_attrs(out.attrs, "netCDF")
+    return out, chars
+
+
+def cf_global_attrs(attrs: dict, written_as: str) -> dict:
+    """A table's global attributes as a file stores them (:func:`_attr` types), declaring
+    ``Conventions = "CF-1.10"`` and with a ``history`` line when there is none."""
+    out = _attrs(attrs)
+    out["Conventions"] = "CF-1.10"
+    if not str(out.get("history", "")).strip():
         from .._version import __version__
 
         now = _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
-        attrs["history"] = f"{now} brdftab {__version__}: written as netCDF"
-    out.attrs = attrs
-    return out, chars
+        out["history"] = f"{now} brdftab {__version__}: written as {written_as}"
+    return out
 
 
 def _text(c) -> str:

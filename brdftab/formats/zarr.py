@@ -11,7 +11,6 @@ chunk file missing from the store is an error, never read as the fill value.
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import math
 import warnings
@@ -27,6 +26,7 @@ from .._signals import read_array
 from ..errors import FormatError, ParameterError, shown
 from ..params import Param
 from . import FileFormat, cast_samples, register
+from .netcdf import _text, cf_global_attrs
 
 __all__ = ["read_zarr", "write_zarr", "stream_zarr", "is_store", "ZarrWriter"]
 
@@ -238,21 +238,8 @@ def _layout(ds):
     aux = labels + [c for c in ds.coords if c not in ds.dims and set(ds[c].dims) <= set(ds["brdf"].dims)]
     if aux:
         brdf_attrs["coordinates"] = " ".join(dict.fromkeys(aux))
-    attrs = _attrs(ds.attrs)
-    attrs["Conventions"] = "CF-1.10"
-    if not str(attrs.get("history", "")).strip():
-        from .._version import __version__
-
-        now = _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
-        attrs["history"] = f"{now} brdftab {__version__}: written as zarr"
-    rest.attrs = attrs
+    rest.attrs = cf_global_attrs(ds.attrs, "zarr")
     return rest, brdf_attrs
-
-
-def _text(c) -> str:
-    if isinstance(c, (bytes, np.bytes_)):
-        return bytes(c).decode("utf-8", "replace")
-    return str(c)
 
 
 def _chunking(shape, itemsize: int, target: int | None = None) -> tuple:
