@@ -99,9 +99,10 @@ def cell_widths(axis) -> np.ndarray:
     return hi - lo
 
 
-def rusinkiewicz_node_weights(grid, phi_d_index=None) -> np.ndarray:
+def rusinkiewicz_node_weights(grid, phi_d_index=None, key=None) -> np.ndarray:
     """cosθi cosθo dωi dωo of each node of a Rusinkiewicz grid (shape ``grid.shape``, or with
-    only the φd nodes ``phi_d_index``).
+    only the φd nodes ``phi_d_index``; ``key``: only the θh nodes of a block, a one-slice tuple).
+    A broadcast view: a weight is computed once per distinct (θh, θd, φd), never per φh.
 
     dωi dωo = 4 cosθd sinθh sinθd dθh dφh dθd dφd (Rusinkiewicz 1998); cosθi and cosθo follow
     from (θh, θd, φd): cosθ_{i,o} = cosθh cosθd ∓ sinθh sinθd cosφd. Weights are 0 below the
@@ -113,13 +114,15 @@ def rusinkiewicz_node_weights(grid, phi_d_index=None) -> np.ndarray:
     shape = list(grid.shape)
     k = names.index("phi_d")
     shape[k] = len(ax["phi_d"]) if phi_d_index is None else len(sel)
+    rows = slice(None) if key is None else key[0]
+    shape[0] = len(ax["theta_h"].values[rows])
 
     def along(name, arr):
         s = [1] * len(shape)
         s[names.index(name)] = -1
         return np.reshape(arr, s)
 
-    th = along("theta_h", ax["theta_h"].values)
+    th = along("theta_h", ax["theta_h"].values[rows])
     td = along("theta_d", ax["theta_d"].values)
     pd = along("phi_d", ax["phi_d"].values[sel])
     a = np.cos(th) * np.cos(td)
@@ -127,10 +130,14 @@ def rusinkiewicz_node_weights(grid, phi_d_index=None) -> np.ndarray:
     mu_i = np.maximum(a - b, 0.0)
     mu_o = np.maximum(a + b, 0.0)
     w = 4.0 * np.cos(td) * np.sin(th) * np.sin(td) * mu_i * mu_o
-    w = w * along("theta_h", cell_widths(ax["theta_h"])) * along("theta_d", cell_widths(ax["theta_d"]))
+    w = w * along("theta_h", cell_widths(ax["theta_h"])[rows]) * along("theta_d", cell_widths(ax["theta_d"]))
     w = w * along("phi_d", cell_widths(ax["phi_d"])[sel])
     if "phi_h" in ax:
-        w = w * along("phi_h", cell_widths(ax["phi_h"]))
+        dph = cell_widths(ax["phi_h"])
+        if np.all(dph == dph[0]):  # uniform φh: one factor, the φh axis stays a broadcast
+            w = w * dph[0]
+        else:
+            w = w * along("phi_h", dph)
     return np.broadcast_to(w, tuple(shape))
 
 
@@ -198,11 +205,8 @@ def phi_d_pairs(grid, v, partner, key=None):
     sel = np.flatnonzero(np.arange(n) <= partner)
     f1 = np.take(v, sel, axis=k)
     f2 = np.take(v, partner[sel], axis=k)
-    w = rusinkiewicz_node_weights(grid, sel)
-    start = 0
-    if key is not None:
-        w = w[key]
-        start = key[0].start or 0
+    w = rusinkiewicz_node_weights(grid, sel, key)
+    start = 0 if key is None else (key[0].start or 0)
     shape = f1.shape[:-1]
     c = v.shape[-1]
     def flat(row):
@@ -213,17 +217,19 @@ def phi_d_pairs(grid, v, partner, key=None):
     return f1.reshape(-1, c), f2.reshape(-1, c), np.ascontiguousarray(w).reshape(-1), flat
 
 
-def gonio_node_weights(grid) -> np.ndarray:
-    """cosθi cosθo dωi dωo of each node of a spherical (gonio) grid (shape ``grid.shape``)."""
+def gonio_node_weights(grid, key=None) -> np.ndarray:
+    """cosθi cosθo dωi dωo of each node of a spherical (gonio) grid (shape ``grid.shape``;
+    ``key``: only the θi nodes of a block, a one-slice tuple)."""
     a_ti, a_pi, a_to, a_po = grid.axes
-    ti = a_ti.values[:, None, None, None]
+    rows = slice(None) if key is None else key[0]
+    ti = a_ti.values[rows, None, None, None]
     to = a_to.values[None, None, :, None]
     if grid.relative_to == "specular":
         to = ti + to
-    w = (np.cos(ti) * np.sin(ti) * cell_widths(a_ti)[:, None, None, None]
+    w = (np.cos(ti) * np.sin(ti) * cell_widths(a_ti)[rows, None, None, None]
          * np.maximum(np.cos(to), 0.0) * np.abs(np.sin(to)) * cell_widths(a_to)[None, None, :, None]
          * cell_widths(a_pi)[None, :, None, None] * cell_widths(a_po)[None, None, None, :])
-    return np.broadcast_to(w, grid.shape)
+    return np.broadcast_to(w, (ti.shape[0],) + tuple(grid.shape[1:]))
 
 
 def _warp(ax, x):

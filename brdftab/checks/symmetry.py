@@ -43,14 +43,14 @@ def _thresholds(max_rel, weighted):
 def _rows(ctx, pairs, weights):
     """Rows of node pairs, block by block (:func:`~brdftab.checks._tables.data_blocks`):
     ``pairs(v)`` gives the partner of each sample of a block ``v`` (a slab of the first axis),
-    ``weights`` the node weights of the whole grid."""
+    ``weights(grid, key=key)`` the node weights of a block."""
     grid = ctx.brdf.grid
 
     def rows():
         for key, v in data_blocks(ctx):
             c = v.shape[-1]
-            yield (v.reshape(-1, c), np.asarray(pairs(v)).reshape(-1, c), np.asarray(weights[key]).reshape(-1),
-                   flat_rows(grid, key))
+            w = np.broadcast_to(weights(grid, key=key), v.shape[:-1])
+            yield v.reshape(-1, c), np.asarray(pairs(v)).reshape(-1, c), w.reshape(-1), flat_rows(grid, key)
     return rows
 
 
@@ -127,7 +127,7 @@ class Isotropy(_Pairwise):
                                         mode="construction")
                 k = grid.dims.index("phi_h")
                 mean = lambda v: np.broadcast_to(np.nanmean(v, axis=k, keepdims=True), v.shape)  # noqa: E731
-                return self._nodes(ctx, _rows(ctx, mean, rusinkiewicz_node_weights(grid)), max_relative, weighted,
+                return self._nodes(ctx, _rows(ctx, mean, rusinkiewicz_node_weights), max_relative, weighted,
                                    passed, note)
             a_ti, a_pi, a_to, a_po = grid.axes
             if len(a_pi) == 1:
@@ -150,7 +150,7 @@ class Isotropy(_Pairwise):
                     # advanced indexing moved the broadcast (φi, φo) axes first: put them back
                     p = np.moveaxis(p, (0, 1), (1, 3))
                     return np.where(valid[None, :, None, :, None], p, np.nan)
-            return self._nodes(ctx, _rows(ctx, partner, gonio_node_weights(grid)), max_relative, weighted, passed,
+            return self._nodes(ctx, _rows(ctx, partner, gonio_node_weights), max_relative, weighted, passed,
                                note)
 
         def rotate(wi, wo, rng):
@@ -205,7 +205,7 @@ class Bilateral(_Pairwise):
                 p = v[:, ib, :, np.where(valid, j, 0)]
                 p = np.moveaxis(p, (0, 1), (1, 3))
                 return np.where(valid[None, :, None, :, None], p, np.nan)
-            return self._nodes(ctx, _rows(ctx, partner, gonio_node_weights(grid)), max_relative, weighted)
+            return self._nodes(ctx, _rows(ctx, partner, gonio_node_weights), max_relative, weighted)
 
         def mirror(wi, wo, rng):
             th, ph, td, pd = io_to_hd(wi, wo)
