@@ -96,7 +96,7 @@ def _remove_stale(target: Path) -> None:
 
 #: A write that fails while less than this many bytes are free on its file system is reported
 #: as a full disk: libraries (HDF5) report ENOSPC only as a generic error, and what is left
-#: after such a failure is less than one of their chunks (2 MiB for netCDF).
+#: after such a failure is less than one of their chunks (1 MiB for netCDF).
 FULL_BELOW = 4 << 20
 
 _FULL_ERRNOS = {errno.ENOSPC, getattr(errno, "EDQUOT", errno.ENOSPC)}

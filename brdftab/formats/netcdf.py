@@ -95,7 +95,7 @@ def _first_line(exc) -> str:
 
 
 #: Uncompressed bytes per HDF5 chunk of ``brdf``; the variable is written one chunk at a time.
-CHUNK_BYTES = 1 << 21
+CHUNK_BYTES = 1 << 20
 
 
 def _chunking(shape, itemsize: int, target: int | None = None):
@@ -183,7 +183,7 @@ def _text(c) -> str:
     return str(c)
 
 
-def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
+def write_netcdf(table, path, dtype: str = "float64", complevel: int = 1):
     """Write ``table`` to ``path`` through :func:`stream_netcdf`, one storage chunk of ``brdf`` at
     a time (each a :func:`~brdftab._progress.write_step`, so progress is shown and an interrupt
     acts between chunks)."""
@@ -204,7 +204,7 @@ def write_netcdf(table, path, dtype: str = "float64", complevel: int = 4):
 class NetcdfStream:
     """The block writer of :func:`stream_netcdf` (see ``FileFormat.stream``)."""
 
-    def __init__(self, template, path, dtype: str = "float64", complevel: int = 4):
+    def __init__(self, template, path, dtype: str = "float64", complevel: int = 1):
         self.path = path
         var = template["brdf"]
         ds, encoding = _cf_layout(template)
@@ -269,7 +269,7 @@ class NetcdfStream:
         self.close()
 
 
-def stream_netcdf(template, path, dtype: str = "float64", complevel: int = 4) -> NetcdfStream:
+def stream_netcdf(template, path, dtype: str = "float64", complevel: int = 1) -> NetcdfStream:
     """A block writer of a netCDF table (``FileFormat.stream``): coordinates, auxiliary
     variables and attributes of ``template`` written now, ``brdf`` created chunked
     (:data:`CHUNK_BYTES` per chunk) and filled by ``write(key, block)``."""
@@ -292,7 +292,7 @@ _FORMAT = register(FileFormat(
     params=(
         Param("dtype", "choice", "Storage type of the samples (values are computed in float64).", default="float64",
               choices=("float64", "float32")),
-        Param("complevel", "int", "zlib compression level (0: none).", default=4, minimum=0, maximum=9),
+        Param("complevel", "int", "zlib compression level (0: none).", default=1, minimum=0, maximum=9),
     ),
     precision=1e-12,  # float64 samples (float32 when dtype = float32: 1e-6)
     stored=stored_netcdf,
