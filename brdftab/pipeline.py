@@ -242,11 +242,13 @@ class _Streamed:
         # the table's dataset with a broadcast zero for its samples: nothing of its size is allocated
         template = make_table(np.broadcast_to(np.zeros((), np.float64), grid.shape + (n,)), grid, layout,
                               brdf=model, provenance=self.provenance, specular=_specular_samples(model, lam))
+        names = ", ".join(m.target.name for m in self.members)
         with contextlib.ExitStack() as stack:
             for m, tmp in zip(self.members, tmps):
                 if "dtype" in m.options:
                     _checked_dtype(m.options["dtype"])
-                self.writers.append(stack.enter_context(m.format.stream(template.ds, tmp, **m.options)))
+                with held_signals(writing=names):  # (library code: a signal acts when it is done)
+                    self.writers.append(stack.enter_context(m.format.stream(template.ds, tmp, **m.options)))
             # one block in float64 (its casts and the evaluation's temporaries come on top): a
             # sixteenth of the budget
             items = max(1, memory_budget() // (16 * 8 * n))
@@ -254,14 +256,14 @@ class _Streamed:
             if bar is not None:
                 bar.delay = delay
             try:
-                with held_signals(writing=", ".join(m.target.name for m in self.members)):
-                    for key in blocks(grid.shape, items, align=self.writers[0].chunks[:-1]):
-                        sub = grid.block(key)
-                        values = np.empty(sub.shape + (n,))
-                        fill_values(model, sub, lam, values, bar=bar)
+                for key in blocks(grid.shape, items, align=self.writers[0].chunks[:-1]):
+                    sub = grid.block(key)
+                    values = np.empty(sub.shape + (n,))
+                    fill_values(model, sub, lam, values, bar=bar)  # (interrupted as any tabulation)
+                    with held_signals(writing=names):
                         for w in self.writers:
                             w.write(key + (slice(None),), values)
-                        checkpoint()  # Ctrl-C / SIGTERM act between blocks
+                        checkpoint()  # Ctrl-C / SIGTERM received during the write act here
             finally:
                 if bar is not None:
                     bar.close()

@@ -1431,10 +1431,11 @@ _SIZE_UNITS = {"": 1, "b": 1, "k": 1 << 10, "kb": 1000, "kib": 1 << 10, "m": 1 <
 
 def parse_size(text, what: str = "memory") -> int:
     """Bytes of a size written ``"1G"``, ``"512MiB"``, ``"2.5GB"`` or a plain number of bytes
-    (``K``/``M``/``G``/``T`` alone are binary, ``KB``... decimal, ``KiB``... binary).
+    (``K``/``M``/``G``/``T`` alone are binary, ``KB``... decimal, ``KiB``... binary); at least
+    1 MiB.
 
-    >>> parse_size("1G"), parse_size("500MB"), parse_size("4096")
-    (1073741824, 500000000, 4096)
+    >>> parse_size("1G"), parse_size("500MB"), parse_size("2097152")
+    (1073741824, 500000000, 2097152)
     """
     import re
 

@@ -125,7 +125,7 @@ CASES = {
     # [[output]]
     "unknown-output-extension": (
         _spec_text(output='[[output]]\npath = "out.xyz"\n'),
-        ["output[0].path", ".xyz", "(known: .nc, .nc4, .netcdf, .binary, .bsdf, .exr)"],
+        ["output[0].path", ".xyz", "(known: .nc, .nc4, .netcdf, .zarr, .binary, .bsdf, .exr)"],
     ),
     "unknown-output-option": (
         _spec_text(output='[[output]]\npath = "out.nc"\ncompression = 4\n'),
@@ -387,7 +387,7 @@ def test_tabulate_out_folder_missing_is_created(tmp_path):
 
 @pytest.mark.parametrize("args, expected", [
     (["eval", GGX_GOLD, "--wi-deg", "30,0"], ["--wo-deg"]),                                   # missing option
-    (["eval", SPECS, "--wi-deg", "30,0", "--wo-deg", "30,180"], ["is a directory"]),         # folder as spec
+    (["eval", SPECS, "--wi-deg", "30,0", "--wo-deg", "30,180"], ["is a folder, neither a table file nor a zarr store"]),         # folder as spec
     (["tabulate", SPECS], ["is a directory"]),
     (["eval", GGX_GOLD, "--wi-deg", "30,0", "--wo-deg", "30,180", "--wavelength-nm", "abc"],
      ["--wavelength-nm", "abc"]),                                                            # not a number

@@ -164,10 +164,11 @@ def _cf_layout(ds):
     return out, chars
 
 
-def cf_global_attrs(attrs: dict, written_as: str) -> dict:
-    """A table's global attributes as a file stores them (:func:`_attr` types), declaring
-    ``Conventions = "CF-1.10"`` and with a ``history`` line when there is none."""
-    out = _attrs(attrs)
+def cf_global_attrs(attrs: dict, written_as: str, convert=None) -> dict:
+    """A table's global attributes as a file stores them (``convert``: the format's attribute
+    types, default netCDF's :func:`_attrs`), declaring ``Conventions = "CF-1.10"`` and with a
+    ``history`` line when there is none."""
+    out = (convert or _attrs)(attrs)
     out["Conventions"] = "CF-1.10"
     if not str(out.get("history", "")).strip():
         from .._version import __version__

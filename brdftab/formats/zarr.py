@@ -238,7 +238,7 @@ def _layout(ds):
     aux = labels + [c for c in ds.coords if c not in ds.dims and set(ds[c].dims) <= set(ds["brdf"].dims)]
     if aux:
         brdf_attrs["coordinates"] = " ".join(dict.fromkeys(aux))
-    rest.attrs = cf_global_attrs(ds.attrs, "zarr")
+    rest.attrs = cf_global_attrs(ds.attrs, "zarr", _attrs)
     return rest, brdf_attrs
 
 
