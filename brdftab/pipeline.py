@@ -25,7 +25,7 @@ from .brdf import BRDF
 from .checks import Report, guard
 from .errors import BrdftabError
 from .spec import Spec
-from .table import CHECKED_PEAK, CHUNK_OVERHEAD, check_checked_memory, memory_budget, tabulate
+from .table import CHECKED_PEAK, check_checked_memory, memory_budget, tabulate
 
 __all__ = ["Result", "Planned", "plan", "run"]
 
@@ -311,8 +311,9 @@ def _n_channels(spec: Spec) -> int:
 
 
 def _in_memory_bytes(grid, n: int) -> float:
-    """Peak memory of tabulating ``grid`` x ``n`` channels in memory and checking it."""
-    return float(grid.size) * n * 8 * CHECKED_PEAK + CHUNK_OVERHEAD
+    """Peak memory of tabulating ``grid`` x ``n`` channels in memory and checking it (the
+    figure by which a table read from disk is over the budget too, :attr:`Table.over_budget`)."""
+    return float(grid.size) * n * 8 * CHECKED_PEAK
 
 
 def _streams(spec: Spec, grid, members) -> bool:

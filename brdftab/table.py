@@ -454,18 +454,26 @@ class Table(BRDF):
     def eval_batch(self) -> int | None:
         """Pairs an integration should evaluate per call (None: its own default): a table read
         from scratch disk (:meth:`_slab_mode`) passes over it once per call, so it takes as many
-        pairs at once as a quarter of the memory budget holds (about 200 bytes per pair with the
-        integration's and the interpolation's temporaries)."""
-        return max(1 << 18, memory_budget() // (4 * 200)) if self._slab_mode() else None
+        pairs at once as a quarter of the memory budget holds (about 800 bytes per pair with the
+        integration's and the interpolation's temporaries, measured)."""
+        return max(1 << 16, memory_budget() // (4 * 800)) if self._slab_mode() else None
+
+    @property
+    def over_budget(self) -> bool:
+        """True for a table on disk that working on in memory would take more than the memory
+        budget (:func:`memory_budget`): loaded and checked whole, a table takes
+        :data:`CHECKED_PEAK` times its samples in float64 (measured), the figure a tabulation
+        run is streamed by too. Such a table is read block by block and evaluated window by
+        window from scratch disk."""
+        if self._values is not None:
+            return False
+        return float(self.grid.size) * self.shape[-1] * 8 * CHECKED_PEAK > memory_budget()
 
     def _slab_mode(self) -> bool:
-        """A table on disk whose interpolation data (:meth:`_interp_data`: the values with
-        horizon ghosts in float64, the valid mask, and the compiled evaluation's packed copy)
-        would take more than half the memory budget is evaluated window by window from scratch
-        disk (numpy, :class:`OutOfCore`)."""
-        if self._values is not None or self.grid.axes[0].period is not None:
-            return False
-        return self.nbytes + self.grid.size * self.shape[-1] * (8 * 2 + 1) > memory_budget() // 2
+        """A table over the memory budget (:attr:`over_budget`) is evaluated window by window
+        from scratch disk (numpy, :class:`OutOfCore`), or from the few rows of its first axis
+        the queries need."""
+        return self.over_budget and self.grid.axes[0].period is None
 
     def eval(self, wi, wo, wavelengths=None, *, assume_unit: bool = False) -> np.ndarray:
         """f(wi, wo) by multilinear interpolation (see :meth:`BRDF.eval` and the module
@@ -536,7 +544,7 @@ class Table(BRDF):
         if self._slab_mode():
             lo, hi = _slab_rows(self, idx[0])
             per_row = self.grid.size // self.shape[0] * self.shape[-1] * (self._var.dtype.itemsize + 8 * 3)
-            if getattr(self, "_ooc", None) is None and (hi - lo) * per_row <= memory_budget() // 2:
+            if getattr(self, "_ooc", None) is None and (hi - lo) * per_row <= memory_budget() // 8:
                 out = _slab_eval(self, wi, wo, lo, hi)  # few rows: read them, no scratch
             else:
                 out = self._out_of_core().interpolate(idx)

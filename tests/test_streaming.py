@@ -143,7 +143,7 @@ def test_a_tiny_budget_streams_the_same_table_as_one_array(tmp_path, monkeypatch
 def test_a_streamed_table_that_fails_its_checks_leaves_nothing(tmp_path, factor, dtype, check):
     spec = tmp_path / "bad.toml"
     spec.write_text(f'[model]\nname = "scale"\nfactor = {factor}\n[model.term]\nname = "lambert"\nalbedo = 0.5\n'
-                    '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 8\nn_theta_d = 8\nn_phi_d = 16\n'
+                    '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 32\nn_theta_d = 32\nn_phi_d = 64\n'
                     f'[[output]]\npath = "bad.nc"\ndtype = "{dtype}"\n')
     env = dict(os.environ, BRDFTAB_MEMORY="1M", PYTHONPATH=str(ROOT))
     r = subprocess.run([sys.executable, "-m", "brdftab", "tabulate", str(spec)], capture_output=True, text=True,

@@ -155,14 +155,9 @@ def data_values(ctx) -> np.ndarray:
 
 
 def over_budget(table) -> bool:
-    """True when the checks' copies of a table's samples (values and partners in float64) would
-    not fit the memory budget: the table is not loaded and its node pairs are compared block by
-    block (:func:`data_blocks`)."""
-    from ..table import memory_budget
-
-    if getattr(table, "_values", None) is not None or not hasattr(table, "iter_blocks"):
-        return False
-    return table.grid.size * table.shape[-1] * 8 * 4 > memory_budget()
+    """True for a table on disk over the memory budget (:attr:`brdftab.table.Table.over_budget`):
+    its node pairs are compared block by block (:func:`data_blocks`)."""
+    return bool(getattr(table, "over_budget", False))
 
 
 class NotBlockable(Exception):
@@ -180,7 +175,8 @@ def data_blocks(ctx):
     if not over_budget(t):
         yield (slice(0, t.grid.shape[0]),), data_values(ctx)
         return
-    for key, v in t.iter_blocks(max(1 << 20, memory_budget() // 16)):
+    # a block as stored; its partners, weights (float64) and the statistics' copies take ~8x that
+    for key, v in t.iter_blocks(max(1 << 20, memory_budget() // 64)):
         if len(key) != 1:
             raise NotBlockable(f"one {t.grid.dims[0]} slab of the table is over the memory budget")
         miss = _missing_mask(v, t._var.attrs)
