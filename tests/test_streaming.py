@@ -254,3 +254,22 @@ def test_gonio_reciprocity_over_budget_is_skipped_saying_so(tmp_path, monkeypatc
         monkeypatch.setattr(where, lambda t: True)  # (a table this small never is)
     out = brdftab.checks.run_checks(brdftab.open(path), only=["reciprocity"]).get("reciprocity")
     assert out.status == "skip" and "over the memory budget" in out.detail and "--memory" in out.detail
+
+
+def test_node_pairs_of_slabs_larger_than_a_block_share_of_the_budget(tmp_path, monkeypatch):
+    """A slab of the first axis over a 64th of the budget is read as one block; one over an
+    eighth of it cannot be compared and the check says so (a skip, never an internal error)."""
+    path = _run(tmp_path, monkeypatch, None, fold="none").written[0]
+    want = brdftab.checks.run_checks(brdftab.open(path), only=["reciprocity", "isotropy"])
+    monkeypatch.setenv("BRDFTAB_MEMORY", "1M")
+    t = brdftab.open(path)
+    row = t.nbytes // t.shape[0]
+    for budget, fits in ((row * 16, True), (row * 4, False)):  # rows over a 64th of the budget
+        monkeypatch.setattr("brdftab.table.memory_budget", lambda b=budget: b)
+        monkeypatch.setattr("brdftab.checks._tables.memory_budget", lambda b=budget: b, raising=False)
+        got = brdftab.checks.run_checks(brdftab.open(path), only=["reciprocity", "isotropy"])
+        for name in ("reciprocity", "isotropy"):
+            if fits:
+                assert got.get(name).figure == pytest.approx(want.get(name).figure, rel=1e-9), name
+            else:
+                assert got.get(name).status == "skip" and "over the memory budget" in got.get(name).detail

@@ -176,9 +176,11 @@ def data_blocks(ctx):
         yield (slice(0, t.grid.shape[0]),), data_values(ctx)
         return
     # a block as stored; its partners, weights (float64) and the statistics' copies take ~8x that
-    for key, v in t.iter_blocks(max(1 << 20, memory_budget() // 64)):
-        if len(key) != 1:
-            raise NotBlockable(f"one {t.grid.dims[0]} slab of the table is over the memory budget")
+    row = t.nbytes // max(1, t.shape[0])
+    if row * 8 > memory_budget():
+        raise NotBlockable(f"one {t.grid.dims[0]} slab of the table ({row / 2**20:.3g} MiB) is over the memory "
+                           "budget for comparing node pairs")
+    for key, v in t.iter_blocks(max(row, memory_budget() // 64)):
         miss = _missing_mask(v, t._var.attrs)
         v = v if miss is None else np.where(miss, np.nan, v.astype(np.result_type(v.dtype, np.float32)))
         yield key, v

@@ -23,7 +23,7 @@ from ..geometry import hd_to_io, io_to_hd, rot_z
 from ..params import Param
 from . import Check, register
 from ._pairs import asymmetry, asymmetry_blocks, fmt_pair, sample_pairs, where_deg
-from ._tables import (data_blocks, flat_rows, gonio_node_weights, match_axis, node_where, phi_d_pairs,
+from ._tables import (NotBlockable, data_blocks, flat_rows, gonio_node_weights, match_axis, node_where, phi_d_pairs,
                       rusinkiewicz_node_weights)
 
 __all__ = ["Isotropy", "Bilateral"]
@@ -90,7 +90,10 @@ class _Pairwise(Check):
     def _nodes(self, ctx, rows, max_relative, weighted, passed=None, note=""):
         """Judge node pairs given block by block (``rows()``, see :func:`_rows`)."""
         c = ctx.brdf.shape[-1]
-        s = asymmetry_blocks(rows)
+        try:
+            s = asymmetry_blocks(rows)
+        except NotBlockable as exc:
+            return self.skip(f"{exc} (raise the budget with --memory or BRDFTAB_MEMORY to compare them)")
         if not s["compared"]:  # every pair has a missing or non-finite side: nothing was measured
             return self.skip(f"no node pair has data on both sides (of {s['excluded']}): the {self.what} cannot be "
                              "measured", compared=0)
