@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -384,7 +385,7 @@ def validate(spec: Spec, checks: dict | None = None, progress: bool | None = Non
 
             for m in job.members:
                 with tempfile.TemporaryDirectory(prefix="brdftab-validate-") as folder:
-                    scratch = Planned(m.target.parent / folder / m.target.name, m.format, m.options, m.grid)
+                    scratch = Planned(Path(folder) / m.target.name, m.format, m.options, m.grid)
                     one = _Streamed(job.grid, [scratch], provenance)
                     one.write(spec, [scratch.target], progress, 0.0)
                     table = m.format.read(scratch.target)

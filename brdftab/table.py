@@ -72,7 +72,7 @@ from .channels import Layout
 from .errors import BrdftabError, BrdftabWarning, FormatError, ParameterError
 from .grids import Grid, check_grid, grid_from_dataset
 
-__all__ = ["Table", "tabulate", "make_table", "fill_values", "blocks", "memory_budget", "parse_size", "check_memory", "check_checked_memory", "OUTSIDE_MODES", "DEFAULT_CHUNK", "DIRECTION_CONVENTION",
+__all__ = ["Table", "tabulate", "make_table", "fill_values", "blocks", "chunk_shape", "memory_budget", "parse_size", "check_memory", "check_checked_memory", "OUTSIDE_MODES", "DEFAULT_CHUNK", "DIRECTION_CONVENTION",
            "PHI_CONVENTION", "SPECULAR_VAR", "SPECULAR_DIM", "SPECULAR_THETA_I", "carries_specular_delta",
            "warn_specular_dropped", "set_albedo_curve", "ALBEDO_VAR", "ALBEDO_DIM", "ALBEDO_WHITE_SKY",
            "LABEL_SUFFIX"]
@@ -1267,6 +1267,26 @@ def fill_values(brdf: BRDF, grid: Grid, lam, values, chunk_size: int = DEFAULT_C
             bar.update(stop - start)
 
 
+def _split(shape, max_items: int):
+    """``(k, s)``: the first axis ``k`` whose trailing axes hold at most ``max_items`` elements
+    (the last axis when none does) and the run ``s`` of its nodes that fits."""
+    max_items = max(1, int(max_items))
+    for k in range(len(shape)):
+        tail = math.prod(shape[k + 1:])
+        if tail <= max_items or k == len(shape) - 1:
+            break
+    return k, max(1, min(shape[k], max_items // max(1, tail)))
+
+
+def chunk_shape(shape, max_items: int) -> tuple:
+    """The storage chunk ``(1,)*k + (s,) + shape[k+1:]`` of at most ``max_items`` elements (one
+    element of the last axis at least): the shape of :func:`blocks`' blocks, which follow the
+    first axis, as every reader of a table too large to load does."""
+    shape = tuple(int(x) for x in shape)
+    k, step = _split(shape, max_items)
+    return (1,) * k + (step,) + shape[k + 1:]
+
+
 def blocks(shape, max_items: int, align=None):
     """Keys (tuples of slices over the leading axes) that cut an array of ``shape`` into blocks
     of at most ``max_items`` elements (at least one element of the last axes kept whole):
@@ -1274,12 +1294,7 @@ def blocks(shape, max_items: int, align=None):
     run of the next. ``align`` (a chunk shape of the same rank) makes the runs whole chunks
     where it can, so each block writes whole storage chunks."""
     shape = tuple(int(x) for x in shape)
-    max_items = max(1, int(max_items))
-    for k in range(len(shape)):
-        tail = math.prod(shape[k + 1:])
-        if tail <= max_items or k == len(shape) - 1:
-            break
-    step = max(1, min(shape[k], max_items // max(1, tail)))
+    k, step = _split(shape, max_items)
     if align is not None and len(align) == len(shape):
         c = int(align[k])
         if 0 < c < step:

@@ -273,3 +273,16 @@ def test_node_pairs_of_slabs_larger_than_a_block_share_of_the_budget(tmp_path, m
                 assert got.get(name).figure == pytest.approx(want.get(name).figure, rel=1e-9), name
             else:
                 assert got.get(name).status == "skip" and "over the memory budget" in got.get(name).detail
+
+
+def test_validating_a_spec_over_budget_judges_the_streamed_table_and_writes_nothing(tmp_path, monkeypatch):
+    spec = _spec(tmp_path, fold="none")
+    monkeypatch.delenv("BRDFTAB_MEMORY", raising=False)
+    (want,) = pipeline.validate(spec)
+    monkeypatch.setenv("BRDFTAB_MEMORY", "1M")
+    (got,) = pipeline.validate(spec)
+    assert [(o.name, o.status) for o in got.outcomes] == [(o.name, o.status) for o in want.outcomes]
+    for a, b in zip(want.outcomes, got.outcomes):
+        if isinstance(a.figure, float):
+            assert b.figure == pytest.approx(a.figure, rel=1e-9, abs=1e-15), a.name
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["spec.toml"]

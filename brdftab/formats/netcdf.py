@@ -98,16 +98,6 @@ def _first_line(exc) -> str:
 CHUNK_BYTES = 1 << 20
 
 
-def _chunking(shape, itemsize: int, target: int | None = None):
-    """``(k, s)``: chunks of shape ``(1,)*k + (s,) + shape[k+1:]`` of about ``target`` bytes."""
-    target = CHUNK_BYTES if target is None else target
-    for k in range(len(shape)):
-        tail = math.prod(shape[k + 1:]) * itemsize
-        if tail <= target:
-            return k, max(1, min(shape[k], target // tail))
-    return len(shape) - 1, 1  # pragma: no cover - the last axis alone always fits
-
-
 def _attr(value):
     """An attribute value in a type netCDF-3 (classic) has: integers (flags, counts) as int32
     (float64 beyond its range), booleans as int32, text as NC_CHAR (UTF-8 bytes when it is not
@@ -221,8 +211,9 @@ class NetcdfStream:
             warnings.simplefilter("ignore")  # xarray's note on coordinates no remaining variable uses: brdf will
             rest.to_netcdf(path, engine="netcdf4", format="NETCDF4", encoding=encoding)
         self.dtype = np.dtype(dtype)
-        k, step = _chunking(var.shape, self.dtype.itemsize)
-        self.chunks = (1,) * k + (step,) + tuple(var.shape[k + 1:])
+        from ..table import chunk_shape
+
+        self.chunks = chunk_shape(var.shape, CHUNK_BYTES // self.dtype.itemsize)
         attrs = _attrs(var.attrs)
         aux = [c for c in ds.coords if c not in ds.dims and set(ds[c].dims) <= set(var.dims)]
         if aux:

@@ -12,7 +12,6 @@ chunk file missing from the store is an error, never read as the fill value.
 from __future__ import annotations
 
 import json
-import math
 import warnings
 from itertools import product
 from pathlib import Path
@@ -242,16 +241,6 @@ def _layout(ds):
     return rest, brdf_attrs
 
 
-def _chunking(shape, itemsize: int, target: int | None = None) -> tuple:
-    """The chunk shape ``(1,)*k + (s,) + shape[k+1:]`` of about ``target`` bytes."""
-    target = CHUNK_BYTES if target is None else target
-    for k in range(len(shape)):
-        tail = math.prod(shape[k + 1:]) * itemsize
-        if tail <= target:
-            return (1,) * k + (max(1, min(shape[k], target // max(1, tail))),) + tuple(shape[k + 1:])
-    return (1,) * len(shape)  # pragma: no cover - the last axis alone always fits
-
-
 def _compressors(zarr_format: int, complevel: int, codec: str | None = None):
     """The codecs after serialisation of ``brdf`` and the auxiliary variables (None: none)."""
     codec = CODEC if codec is None else codec
@@ -302,7 +291,10 @@ class ZarrWriter:
             dims = {}
         else:
             dims = {"dimension_names": tuple(var.dims)}
-        self.chunks = _chunking(self.shape, self.dtype.itemsize, chunk_bytes)
+        from ..table import chunk_shape
+
+        self.chunks = chunk_shape(self.shape, (CHUNK_BYTES if chunk_bytes is None else chunk_bytes)
+                                  // self.dtype.itemsize)
         self.array = self.group.create_array(
             "brdf", shape=self.shape, dtype=self.dtype, chunks=self.chunks, compressors=codecs, filters=None,
             fill_value=np.nan, attributes=brdf_attrs, config={"write_empty_chunks": True}, **dims)
@@ -366,25 +358,16 @@ def stream_zarr(template, path, dtype: str = "float64", complevel: int = 3, zarr
     return ZarrWriter(template, path, dtype=dtype, complevel=complevel, zarr_format=zarr_format)
 
 
-def blocks(shape, chunks, itemsize: int, block_bytes: int | None = None):
-    """Keys (tuples of slices) covering ``shape`` in whole ``chunks`` of the form
-    ``(1,)*k + (s,) + shape[k+1:]``, each about ``block_bytes`` (several chunks along axis k)."""
-    block_bytes = BLOCK_BYTES if block_bytes is None else block_bytes
-    k = next(i for i in range(len(shape)) if tuple(chunks[i + 1:]) == tuple(shape[i + 1:]))
-    step = chunks[k] * max(1, block_bytes // max(1, math.prod(chunks) * itemsize))
-    for lead in np.ndindex(*shape[:k]):
-        for start in range(0, shape[k], step):
-            yield tuple(slice(i, i + 1) for i in lead) + (slice(start, min(start + step, shape[k])),)
-
-
 def write_zarr(table, path, dtype: str = "float64", complevel: int = 3, zarr_format: int = 3):
     """Write ``table`` to the store ``path`` block by block through :func:`stream_zarr` (each block
     a :func:`~brdftab._progress.write_step`; a table on disk is read one block at a time)."""
+    from ..table import blocks
+
     var = table.ds["brdf"]
     total, done = int(var.size), 0
     with stream_zarr(table.ds, path, dtype=dtype, complevel=complevel, zarr_format=zarr_format) as out:
         write_step(0, total)
-        for key in blocks(var.shape, out.chunks, out.dtype.itemsize):
+        for key in blocks(var.shape, BLOCK_BYTES // out.dtype.itemsize, align=out.chunks):
             block = read_array(var.variable[key])
             out.write(key, block)
             done += block.size
