@@ -166,7 +166,7 @@ def _declared(path, n_theta_h=2000, written=10):
     with zarr_format.stream_zarr(template, path) as w:
         assert w.chunks == (10,) + shape[1:]  # 10 θh slabs per chunk (3.7 MiB)
         w.write((slice(0, written),), np.ones((written,) + shape[1:]))
-        w.update_attrs({"validation_passed": 1})
+    w.update(xr.Dataset(attrs={"validation_passed": 1}))  # after the samples, as a streamed run does
     return path
 
 
@@ -219,7 +219,7 @@ def test_the_block_writer_takes_blocks_in_any_order(tmp_path, rgb):
             lo = max(0, start)
             w.write((slice(lo, start + 5), slice(None), slice(0, 7)), rgb.values[lo:start + 5, :, :7])
             w.write((slice(lo, start + 5), slice(None), slice(7, None)), rgb.values[lo:start + 5, :, 7:])
-        w.update_attrs({"validation_summary": "all checks passed"})
+    w.update(xr.Dataset(attrs={"validation_summary": "all checks passed"}))
     back = brdftab.open(path)
     assert back.ds.attrs["validation_summary"] == "all checks passed"
     assert np.array_equal(back.values, rgb.values.astype(np.float32))

@@ -305,10 +305,6 @@ class ZarrWriter:
         """Store ``block`` (cast to the storage type) at ``key`` (slices over ``brdf``'s dims)."""
         self.array[tuple(key)] = np.asarray(block).astype(self.dtype, copy=False)
 
-    def update_attrs(self, attrs: dict) -> None:
-        """Set global attributes (e.g. the check report, known only after the checks)."""
-        self.group.attrs.update(_attrs(attrs))
-
     def update(self, extra) -> None:
         """After the checks: add the variables of the dataset ``extra`` the store lacks (the
         albedo curve) and set its global attributes (the report); the metadata is consolidated
