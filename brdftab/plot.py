@@ -191,10 +191,9 @@ def _apply(quantity: str, f, brdf, series: _Series, wi, wo) -> np.ndarray:
     if quantity == "brf":
         return np.pi * f
     if quantity == "relative":
-        wi = np.broadcast_to(np.asarray(wi, float), np.shape(wo))
-        mirror = wi * np.array([-1.0, -1.0, 1.0])
+        mirror = np.broadcast_to(np.asarray(wi, float), np.shape(wo)) * np.array([-1.0, -1.0, 1.0])
         with np.errstate(divide="ignore", invalid="ignore"):
-            return f / series.values(brdf, wi, mirror)
+            return f / series.values(brdf, np.ascontiguousarray(np.broadcast_to(wi, np.shape(wo))), mirror)
     raise BrdftabError(f"unknown quantity {quantity!r}; one of {', '.join(QUANTITIES)}")
 
 
@@ -532,7 +531,7 @@ def hemisphere(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str 
     _, _, theta, phi = hemisphere_grid(n)
     inside = np.isfinite(theta)
     wo = sph_to_vec(np.where(inside, theta, 0.0), phi)
-    wi = np.broadcast_to(sph_to_vec(ti, pi_), wo.shape)
+    wi = np.ascontiguousarray(np.broadcast_to(sph_to_vec(ti, pi_), wo.shape))
     v = _apply(quantity, series.values(brdf, wi, wo), brdf, series, wi, wo)
     v = np.where(inside[..., None], v, np.nan)
     use_log = _log_wanted(log, v[..., keep])
