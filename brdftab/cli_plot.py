@@ -155,5 +155,7 @@ def plot(source, out, kind, theta_i, phi_i, phi_d, quantity, log, against, ratio
         options["other"], _ = _source(against)
         options["other_label"] = against.name
     fig = plots.figure(kind, brdf, **options)
-    plots.save(fig, out, overwrite=overwrite, dpi=dpi)
+    inputs = [(source, "the plotted file")] + ([(against, "the file compared")] if against is not None else []) + (
+        [(points, "the points file")] if points is not None else [])
+    plots.save(fig, out, overwrite=overwrite, dpi=dpi, inputs=inputs)
     click.echo(f"wrote {out} ({kind}, {ext[1:]})")

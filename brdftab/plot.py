@@ -256,7 +256,7 @@ def _title(brdf, label=None, extra: str = "", width: int = 95) -> str:
         text = f"{brdf.name}({params})" + (f" [{label}]" if label else "")
     if extra:
         text = f"{text} — {extra}"
-    return "\n".join(textwrap.wrap(text, width, break_on_hyphens=False)[:3])
+    return "\n".join(textwrap.wrap(text, width, break_on_hyphens=False)[:4])
 
 
 def _new_figure(size=(7.0, 4.6)) -> Figure:
@@ -340,7 +340,8 @@ def _points_artist(ax, points, theta_i=None):
         return
     pts = np.asarray(points, float).reshape(-1, 3)
     ax.plot(pts[:, 1], pts[:, 2], linestyle="none", marker="o", markersize=7, markerfacecolor="none",
-            markeredgecolor="tab:red", markeredgewidth=1.5, label="printed values", gid="points", zorder=5)
+            markeredgecolor="tab:red", markeredgewidth=1.5, label="printed values", gid="points", zorder=5,
+            clip_on=False)
     for t, o, v in pts:
         ax.annotate(f"{v:g}", (o, v), textcoords="offset points", xytext=(4, 6), fontsize=7, color="tab:red")
 
@@ -483,11 +484,11 @@ def _disc_frame(ax):
         r = math.sqrt(2.0) * math.sin(math.radians(deg) / 2)
         ax.plot(r * np.cos(t), r * np.sin(t), color="0.6" if deg < 90 else "0.2", lw=0.6, gid=f"ring={deg}")
         ax.text(r * math.cos(math.radians(60)), r * math.sin(math.radians(60)), f"{deg}°", fontsize=6, color="0.4")
-    for deg in range(0, 360, 90):
+    for deg, ha, va in ((0, "left", "center"), (90, "center", "bottom"), (180, "right", "center"),
+                        (270, "center", "top")):
         a = math.radians(deg)
-        ax.text(1.08 * math.cos(a), 1.08 * math.sin(a), f"φ={deg}°", fontsize=6, ha="center", va="center",
-                color="0.3")
-    ax.set_xlim(-1.15, 1.15)
+        ax.text(1.03 * math.cos(a), 1.03 * math.sin(a), f"φ={deg}°", fontsize=6, color="0.3", ha=ha, va=va)
+    ax.set_xlim(-1.3, 1.3)
     ax.set_ylim(-1.15, 1.15)
     ax.set_aspect("equal")
     ax.set_xlabel("x = √2 sin(θo/2) cos φo")
@@ -535,7 +536,7 @@ def hemisphere(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str 
     v = _apply(quantity, series.values(brdf, wi, wo), brdf, series, wi, wo)
     v = np.where(inside[..., None], v, np.nan)
     use_log = _log_wanted(log, v[..., keep])
-    fig = _new_figure((4.3 * len(keep) + 0.6, 4.4))
+    fig = _new_figure((4.3 * len(keep) + 1.2, 4.6))
     axes = fig.subplots(1, len(keep), squeeze=False)[0]
     for ax, c in zip(axes, keep):
         img = ax.imshow(v[..., c], origin="lower", extent=(-1, 1, -1, 1), cmap="inferno",
@@ -649,7 +650,7 @@ def compare(brdf, other, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: 
         series = other_series
     with np.errstate(divide="ignore", invalid="ignore"):
         d = b / a if ratio else b - a
-    fig = _new_figure((7.0, 6.4))
+    fig = _new_figure((6.6, 5.8))
     top, bottom = fig.subplots(2, 1, sharex=True, height_ratios=(3, 2))
     la = label or getattr(brdf, "name", "A")
     lb = other_label or getattr(other, "name", "B")
@@ -719,10 +720,16 @@ def artists(fig: Figure, prefix: str = "") -> dict:
 
 
 def to_png_bytes(fig: Figure, dpi: float = 80) -> bytes:
-    """The figure as PNG bytes."""
+    """The figure as PNG bytes: opaque RGB (the figures have a white background, so dropping
+    the alpha channel loses nothing), compressed with Pillow's ``optimize``."""
+    from PIL import Image
+
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
-    return buf.getvalue()
+    fig.savefig(buf, format="png", dpi=dpi)
+    out = io.BytesIO()
+    with Image.open(io.BytesIO(buf.getvalue())) as image:
+        image.convert("RGB").save(out, format="png", optimize=True)
+    return out.getvalue()
 
 
 def output_format(path) -> str:
@@ -734,15 +741,19 @@ def output_format(path) -> str:
     return FORMATS[ext]
 
 
-def save(fig: Figure, path, *, overwrite: bool = False, dpi: float = 100) -> Path:
+def save(fig: Figure, path, *, overwrite: bool = False, dpi: float = 100, inputs=()) -> Path:
     """Write ``fig`` to ``path`` (PNG, SVG or PDF by extension) atomically: the file is
-    complete or absent. An existing file is replaced only with ``overwrite``."""
+    complete or absent. An existing file is replaced only with ``overwrite``, and never when it
+    is one of ``inputs`` (the files plotted: paths or ``(path, "what it is")`` pairs)."""
     from ._atomic import atomic_path
 
     fmt = output_format(path)
     path = Path(path)
-    metadata = {"png": {"Software": None}, "svg": {"Date": None}, "pdf": {"CreationDate": None}}[fmt]
-    with atomic_path(path, overwrite=overwrite) as tmp:
+    with atomic_path(path, overwrite=overwrite, inputs=inputs) as tmp:
         with open(tmp, "wb") as fh:
-            fig.savefig(fh, format=fmt, dpi=dpi, metadata=metadata)
+            if fmt == "png":
+                fh.write(to_png_bytes(fig, dpi))
+            else:  # no creation date: the same figure gives the same file
+                fig.savefig(fh, format=fmt, dpi=dpi, metadata={"Date": None} if fmt == "svg" else
+                            {"CreationDate": None})
     return path

@@ -386,6 +386,15 @@ def test_unreadable_input_and_existing_output(tmp_path, table_file):
     assert out.read_bytes() == b"old" and partials(tmp_path) == []
     assert cli("plot", table_file, "-o", out, "--overwrite").exit_code == 0
     assert out.read_bytes().startswith(PNG)
+    copy = tmp_path / "t.nc"
+    copy.write_bytes(table_file.read_bytes())
+    r = cli("plot", copy, "-o", tmp_path / "t.nc", "--overwrite")   # an unknown extension first ...
+    one_error(r.stderr, r.exit_code, "unknown plot format")
+    pdf = tmp_path / "same.pdf"
+    pdf.write_bytes(copy.read_bytes())
+    r = cli("plot", copy, "--kind", "compare", "--against", pdf, "-o", pdf, "--overwrite")
+    one_error(r.stderr, r.exit_code, "same.pdf")                    # ... never the file it reads
+    assert pdf.read_bytes() == copy.read_bytes()
 
 
 def test_a_failed_render_leaves_no_file(table_file, tmp_path, monkeypatch):
@@ -457,3 +466,18 @@ def test_gallery_torrance_sparrow_curves_pass_through_the_paper_s_points(monkeyp
         if value == printed[printed[:, 0] == theta_i, 2].max():       # the curve's printed maximum
             assert x[np.argmax(y)] == pytest.approx(min(theta_o, x[-1]), abs=0.1)
     assert "dimensionless" in fig.axes[0].get_ylabel()
+
+
+def test_readme_fig8_table_gives_the_plotted_curve():
+    """The README's Fig. 8 table: its "plotted curve" column is the gallery figure's curve."""
+    import re
+
+    text = (ROOT / "README.md").read_text(encoding="utf-8")
+    rows = re.findall(r"^\| (\d+)° \| [^|]+ \| ([\d.]+) at ([\d.]+)°[^|]* \|$", text, flags=re.M)
+    assert len(rows) == 4
+    model = brdftab.from_spec(ROOT / "specs" / "torrance-sparrow-aluminum.toml")
+    drawn = plot.artists(plot.in_plane(model, theta_i_deg=[10, 45, 75], quantity="relative"))
+    for psi, value, at in rows:
+        line = drawn[f"theta_i={psi}|channel=mono"]
+        (j,) = np.flatnonzero(np.isclose(line.get_xdata(), float(at)))
+        assert line.get_ydata()[j] == pytest.approx(float(value), abs=0.6 * 10.0 ** -(len(value.split(".")[1])))
