@@ -51,6 +51,7 @@ def folder(tmp_path_factory):
     shutil.copytree(ROOT / "specs", d / "specs", ignore=shutil.ignore_patterns("*.nc", "*.binary", "*.exr",
                                                                               "*.bsdf"))
     shutil.copytree(ROOT / "data", d / "data")          # the specs' input files (data/ptfe)
+    shutil.copytree(ROOT / "docs", d / "docs")          # the gallery: its commands remake its images
     _COPIED[d] = {p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file()}  # the checkout's files
     return d
 
