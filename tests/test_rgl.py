@@ -1295,3 +1295,29 @@ def test_a_spectral_table_becomes_a_spectral_file_mitsuba_reads(files):
     ref = np.asarray(table.eval(wi, wo, lam), float) * wo[:, 2:3]
     rel, _ = rel_errors(got, ref, 1e-3 * ref.max())
     assert_percentiles("Al spectral table -> .bsdf, Mitsuba vs table", rel, {50: 0.005, 95: 0.02})
+
+
+@pytest.mark.parametrize("anisotropic", [False, True])
+def test_a_warp_fixed_at_one_incidence_is_the_same_warp(files, anisotropic):
+    """Marginal2D.fixed (the warp of one incidence, tables interpolated once) samples, inverts
+    and evaluates to the same bits as the warp interpolated at every point, at incidences on
+    and between the file's nodes."""
+    from brdftab.formats._marginal2d import Marginal2D
+
+    model = create("microfacet", alpha_x=0.15, alpha_y=0.4 if anisotropic else 0.15, fresnel="schlick", f0=0.5)
+    path = files / f"fixed-{anisotropic}.bsdf"
+    brdftab.save(model, path, resolution=12, vndf_resolution=16, n_theta_i=5, **({"n_phi_i": 5} if anisotropic else {}))
+    raw = parse_tensor(path.read_bytes())
+    warp = Marginal2D(raw["vndf"], (raw["phi_i"], raw["theta_i"]))
+    s = np.random.default_rng(0).random((4000, 2))
+    for ph, th in ((0.0, 0.0), (float(raw["phi_i"][-1]), float(raw["theta_i"][2])), (0.7, 0.61), (-2.0, 1.5)):
+        if not anisotropic:
+            ph = 0.0
+        params = (np.full(len(s), ph), np.full(len(s), th))
+        one = warp.fixed((ph, th))
+        for a, b in zip(warp.sample(s, params), one.sample(s)):
+            np.testing.assert_array_equal(a, b)
+        u, _ = warp.sample(s, params)
+        for a, b in zip(warp.invert(u, params), one.invert(u)):
+            np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(warp.eval(u, params), one.eval(u))
