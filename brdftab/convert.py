@@ -399,6 +399,10 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
             resampled = not (formats.detect(source).name == fmt.name and not options and grid is None)
         else:
             resampled = not (same_grid and same_lam)
+        if (not resampled and out_grid is not None and fmt.prepare is None and fmt.stream is not None
+                and getattr(table, "over_budget", False)):
+            return _stream_copy(table, fmt, source, target, options, overwrite, inputs, checks, origin, report_in,
+                                allow_invalid, progress, started)
         brdf, folded = table, []
         if out_grid is not None and resampled:
             reasons = _fold_reasons(table, out_grid)
@@ -485,6 +489,46 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
                 if not result.target_grid and getattr(back, "grid", None) is not None:
                     result.target_grid = back.grid.describe()
     return result
+
+
+def _stream_copy(table, fmt, source, target, options, overwrite, inputs, checks, origin, report_in, allow_invalid,
+                 progress, started) -> Conversion:
+    """Copy a table over the memory budget (:attr:`~brdftab.table.Table.over_budget`) into a
+    format with a block writer (netCDF, zarr) block by block: at most a sixteenth of the budget
+    of its samples is in memory at a time (cast to the output's storage type by the writer), the
+    checks judge the written temporary as stored (read back lazily), their report and the
+    provenance are added to it, and only then is it renamed into place; a failed check leaves
+    nothing behind unless ``allow_invalid``."""
+    from ._atomic import atomic_path
+    from ._signals import checkpoint, held_signals
+    from .checks import stamp
+    from .table import memory_budget
+
+    var = table.ds["brdf"]
+    template = table.ds.copy(deep=False)  # the samples as a broadcast zero: nothing of their size
+    template["brdf"] = var.copy(data=np.broadcast_to(np.zeros((), var.dtype), var.shape))
+    with atomic_path(target, overwrite=overwrite, inputs=inputs) as tmp:
+        with fmt.stream(template, tmp, **options) as writer:
+            with write_progress(target.name, progress, _delay(started)):
+                for key, block in table.iter_blocks(max(1 << 20, memory_budget() // 16), align=writer.chunks):
+                    with held_signals(writing=target.name):
+                        writer.write(key, block)
+                    checkpoint()
+            written = fmt.read(tmp)
+            written.origin = table.origin
+            report_out = _run_checks(written, checks, origin)
+            stamp(written, report_out)
+            if written.ds["brdf"].dtype != var.dtype:  # cast: the input's own findings travel with it
+                _stamp_input(written, report_in, source)  # (an exact copy's report is the input's)
+            _stamp_provenance(written, table, source, target, None)
+            if not report_out.passed and not allow_invalid:
+                written.close()
+                raise InvalidOutput(_refusal(report_out, source, target))
+            writer.update(written.ds.drop_vars("brdf"))
+            written.close()
+    src_text = table.grid.describe()
+    return Conversion(source, target, fmt.name, src_text, src_text, False, [], report=report_out, written=written,
+                      input_report=report_in)
 
 
 def _stamp_input(table, report, source) -> None:

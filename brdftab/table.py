@@ -310,15 +310,16 @@ class Table(BRDF):
         for _, chunk in self.iter_blocks(max_bytes):
             yield chunk
 
-    def iter_blocks(self, max_bytes: int = 64 << 20):
+    def iter_blocks(self, max_bytes: int = 64 << 20, align=None):
         """Yield ``(key, samples[key])``: the samples in blocks of at most ``max_bytes`` (whole
-        slabs of the first axis when they fit, see :func:`blocks`), read from disk one at a time
-        unless the table is loaded; ``key`` is a tuple of slices over the leading axes."""
+        slabs of the first axis when they fit, see :func:`blocks`; ``align``: a chunk shape the
+        blocks keep whole where they can), read from disk one at a time unless the table is
+        loaded; ``key`` is a tuple of slices over the leading axes."""
         if self._values is not None:
             yield (), self._values
             return
         item = self._var.dtype.itemsize
-        for key in blocks(self.shape, max(1, int(max_bytes // item))):
+        for key in blocks(self.shape, max(1, int(max_bytes // item)), align=align):
             yield key, self._read(self._var[key])
 
     #: The rule of :meth:`albedo_rule` covers the table's domain: the albedo integrals report

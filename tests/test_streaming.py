@@ -286,3 +286,42 @@ def test_validating_a_spec_over_budget_judges_the_streamed_table_and_writes_noth
         if isinstance(a.figure, float):
             assert b.figure == pytest.approx(a.figure, rel=1e-9, abs=1e-15), a.name
     assert sorted(p.name for p in tmp_path.iterdir()) == ["spec.toml"]
+
+
+def test_convert_copies_a_table_over_budget_block_by_block(tmp_path, monkeypatch, target="copy.nc", dtype="float32"):
+    """convert of a table over the memory budget onto its own grid never holds it whole: the
+    reader's blocks go to the writer one by one (cast to the output's type there); the output
+    holds the same samples (float32: the input's cast), is judged as stored and stamped like an
+    in-memory copy; a failed check leaves nothing. (zarr's block writer is the same protocol,
+    tested above.)"""
+    from brdftab.convert import convert
+    from brdftab.errors import ValidationError
+
+    monkeypatch.delenv("BRDFTAB_MEMORY", raising=False)
+    (tmp_path / "src").mkdir()
+    src = _run(tmp_path / "src", monkeypatch, None, dtype="float64").written[0]
+    options = {"dtype": dtype} if dtype else {}
+    whole = convert(src, tmp_path / f"whole-{target}", options=options, progress=False)
+    monkeypatch.setenv("BRDFTAB_MEMORY", "1M")
+    assert brdftab.open(src).over_budget
+    loads = []
+    monkeypatch.setattr(brdftab.table.Table, "values", property(lambda self: loads.append(1) or self._values))
+    streamed = convert(src, tmp_path / target, options=options, progress=False)
+    assert loads == []  # nothing read the samples whole
+    a, b = brdftab.open(tmp_path / f"whole-{target}"), brdftab.open(tmp_path / target)
+    assert a.ds["brdf"].dtype == b.ds["brdf"].dtype == np.dtype(dtype or "float64")
+    assert np.array_equal(a.ds["brdf"].values, b.ds["brdf"].values)
+    for key in ("validation_passed", "validation_summary", "converted_from", "converted_from_sha256",
+                "input_validation_passed"):
+        assert a.ds.attrs.get(key) == b.ds.attrs.get(key), key  # (an exact copy has no input_*)
+    assert [(o.name, o.status) for o in whole.report.outcomes] == [(o.name, o.status) for o in streamed.report.outcomes]
+    # a table whose samples fail a check (energy: albedo 1.5): refused, nothing is left
+    from brdftab.models import create
+
+    bright = tmp_path / "bright.nc"
+    brdftab.save(brdftab.tabulate(create("scale", factor=3.0, term=create("lambert", albedo=0.5)),
+                                  RusinkiewiczGrid(32, 32, 64), progress=False), bright)
+    assert brdftab.open(bright).over_budget
+    with pytest.raises(ValidationError, match="energy"):
+        convert(bright, tmp_path / f"bad-{target}", options=options, progress=False)
+    assert not (tmp_path / f"bad-{target}").exists() and not list(tmp_path.rglob("*partial*"))
