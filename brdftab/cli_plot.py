@@ -148,8 +148,9 @@ def plot(source, out, kind, theta_i, phi_i, phi_d, quantity, log, against, ratio
     from . import plot as plots
 
     brdf, spec_lam = _source(source)
-    if options["wavelengths"] is None and spec_lam is not None and not getattr(brdf, "spectral", False):
-        options["wavelengths"] = list(spec_lam)  # a grey model the spec tabulates per wavelength
+    if options["wavelengths"] is None and spec_lam is not None:
+        # the wavelengths the spec tabulates: a few of them (sRGB: all of them)
+        options["wavelengths"] = [float(x) for x in (spec_lam if rgb else plots._pick(spec_lam, plots.MAX_WAVELENGTHS))]
     options["label"] = source.name
     if kind == "compare":
         options["other"], _ = _source(against)

@@ -481,3 +481,23 @@ def test_readme_fig8_table_gives_the_plotted_curve():
         line = drawn[f"theta_i={psi}|channel=mono"]
         (j,) = np.flatnonzero(np.isclose(line.get_xdata(), float(at)))
         assert line.get_ydata()[j] == pytest.approx(float(value), abs=0.6 * 10.0 ** -(len(value.split(".")[1])))
+
+
+def test_a_spectral_spec_is_plotted_at_a_few_of_its_wavelengths(tmp_path, monkeypatch):
+    spec = tmp_path / "s.toml"
+    spec.write_text('[model]\nname = "microfacet"\nalpha = 0.3\nfresnel = "conductor"\n'
+                    'n = {wavelengths_nm = [400, 700], values = [0.5, 1.5]}\n'
+                    'k = {wavelengths_nm = [400, 700], values = [4.0, 7.0]}\n'
+                    '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 4\nn_theta_d = 4\nn_phi_d = 8\n'
+                    'wavelengths_nm = [400, 450, 500, 550, 600, 650, 700]\n[[output]]\npath = "s.nc"\n')
+    figures = []
+    monkeypatch.setattr(plot, "save", lambda fig, path, **kw: figures.append(fig))
+    r = cli("plot", spec, "--theta-i-deg", "30", "-o", tmp_path / "p.png")
+    assert r.exit_code == 0, r.output
+    drawn = plot.artists(figures[0])
+    assert set(drawn) == {f"theta_i=30|channel={lam} nm" for lam in (400, 500, 550, 600, 700)}
+    model = brdftab.from_spec(spec)
+    line = drawn["theta_i=30|channel=550 nm"]
+    (j,) = np.flatnonzero(np.isclose(line.get_xdata(), 30.0))
+    assert line.get_ydata()[j] == pytest.approx(model.eval(*in_plane_pair(30, 30.0), [550.0])[0], rel=1e-12)
+    assert not (tmp_path / "s.nc").exists()          # plotted, not tabulated
