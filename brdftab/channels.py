@@ -247,21 +247,14 @@ RGB_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 def luminance_weights(channels, lam=None) -> np.ndarray:
     """Weights (summing to 1) that turn a channel axis into a relative luminance: Rec. 709 Y
-    for channels R, G, B, CIE 1931 ȳ for wavelengths ``lam`` [nm], the mean otherwise."""
+    for channels R, G, B, CIE Y under D65 for wavelengths ``lam`` [nm] (through colour-science:
+    :func:`brdftab.colorimetry.luminance_weights`), the mean otherwise."""
     if lam is None:
         channels = tuple(channels or ())
         return RGB_LUMINANCE.copy() if channels == ("R", "G", "B") else np.full(len(channels), 1.0 / len(channels))
     lam = np.atleast_1d(np.asarray(lam, float))
-    w = _cie_y(lam)
-    return w / w.sum() if w.sum() > 0 else np.full(lam.size, 1.0 / lam.size)
+    if lam.size == 1:
+        return np.ones(1)
+    from .colorimetry import luminance_weights as cie_y
 
-
-def _cie_y(lam):
-    """CIE 1931 ȳ(λ), multi-lobe Gaussian fit of Wyman, Sloan & Shirley, JCGT 2(2) (2013)."""
-    lam = np.asarray(lam, float)
-
-    def g(mu, s1, s2):
-        t = (lam - mu) / np.where(lam < mu, s1, s2)
-        return np.exp(-0.5 * t * t)
-
-    return 0.821 * g(568.8, 46.9, 40.5) + 0.286 * g(530.9, 16.3, 31.1)
+    return cie_y(lam)

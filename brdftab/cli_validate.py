@@ -209,6 +209,10 @@ def list_checks() -> str:
               help="Print a JSON document (schema: brdftab/checks/report.schema.json) instead of text.")
 @click.option("--junit", type=click.Path(dir_okay=False, path_type=Path), metavar="PATH",
               help="Also write JUnit XML to PATH (testsuite per input, testcase per check).")
+@click.option("--html", "html_path", type=click.Path(dir_okay=False, path_type=Path), metavar="PATH",
+              help="Also write a self-contained HTML report to PATH: every check, the albedo curve, in-plane "
+                   "curves and a hemisphere map per input, and a map of where a failed reciprocity or energy "
+                   "check fails.")
 @check_options
 @click.option("--config", "config_file", type=click.Path(dir_okay=False, path_type=Path),
               help="A TOML file whose [validation] table applies to every input (over a spec's own).")
@@ -220,8 +224,8 @@ def list_checks() -> str:
 @origin_option
 @engine_options
 @click.pass_context
-def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_checks_, progress, quiet, origin,
-             workers, scheduler):
+def validate(ctx, paths, as_json, junit, html_path, levels, settings, config_file, list_checks_, progress, quiet,
+             origin, workers, scheduler):
     """Check BRDF tables and specs: reciprocity, energy, albedo, sample audit, symmetry,
     conventions and tabulation error.
 
@@ -241,16 +245,18 @@ def validate(ctx, paths, as_json, junit, levels, settings, config_file, list_che
     if config_file is not None:
         layers.append(_config_file(config_file))
     layers.append(cli_layer(levels, settings))
-    if junit is not None and not junit.parent.exists():
-        raise BrdftabError(f"--junit {junit}: no such folder {junit.parent}")
+    for option, report_path in (("--junit", junit), ("--html", html_path)):
+        if report_path is not None and not report_path.parent.exists():
+            raise BrdftabError(f"{option} {report_path}: no such folder {report_path.parent}")
     inputs, errors = expand_paths(paths)
     _refuse_missing(inputs, errors)
     # no report may replace a file this run reads (through .., symbolic or hard links too)
     reads = [(p, "the input file") for p in inputs] + ([(config_file, "the --config file")] if config_file else [])
     with contextlib.ExitStack() as outputs:
-        if junit is not None:  # claimed before any check runs: an unwritable folder is refused now
-            outputs.enter_context(claim([junit], overwrite=True, inputs=reads))
-        code = _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin, engine)
+        reports_to = [p for p in (junit, html_path) if p is not None]
+        if reports_to:  # claimed before any check runs: an unwritable folder is refused now
+            outputs.enter_context(claim(reports_to, overwrite=True, inputs=reads))
+        code = _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin, engine, html_path)
     ctx.exit(code)
 
 
@@ -269,7 +275,7 @@ def _refuse_missing(inputs, errors) -> None:
         raise BrdftabError(f"{'; '.join(problems)} (nothing checked)")
 
 
-def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin, engine=None) -> int:
+def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin, engine=None, html_path=None) -> int:
     from .checks import junit_xml, run_document
 
     reports, errors = [], []
@@ -296,7 +302,51 @@ def _validate(inputs, reads, layers, as_json, junit, progress, quiet, origin, en
     if junit is not None:
         with atomic_path(junit, overwrite=True, inputs=reads) as tmp:
             tmp.write_text(junit_xml(reports, errors), encoding="utf-8")
+    if html_path is not None:
+        page = _html_report(inputs, reports, errors, origin)
+        with atomic_path(html_path, overwrite=True, inputs=reads) as tmp:
+            tmp.write_text(page, encoding="utf-8")
     return 2 if errors else (1 if any(not r.passed for r in reports) else 0)
+
+
+def _html_report(inputs, reports, errors, origin) -> str:
+    """The HTML report (:mod:`brdftab.report_html`): each report drawn from its input, a table
+    file read again (lazily) or a spec's model; a sweep's members are not drawn."""
+    import warnings
+
+    from . import formats
+    from .errors import BrdftabWarning
+    from .report_html import Entry, render
+
+    drawn = {}
+
+    def drawable(path):
+        if path not in drawn:
+            brdf, what = None, ""
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore", BrdftabWarning)
+                    if path.suffix.lower() == ".toml":
+                        from .spec import load_spec
+                        from .sweep import is_sweep
+
+                        if not is_sweep(path):
+                            brdf, what = load_spec(path).model, "the spec's model"
+                    else:
+                        brdf = formats.read(path)
+                        if origin is not None:
+                            brdf.origin = origin
+            except BrdftabError:
+                brdf = None
+            drawn[path] = (brdf, what)
+        return drawn[path]
+
+    entries = []
+    for r in reports:
+        src = max((p for p in inputs if str(r.subject).startswith(shown(p))), key=lambda p: len(shown(p)), default=None)
+        brdf, what = drawable(src) if src is not None else (None, "")
+        entries.append(Entry(r, brdf, what))
+    return render(entries, errors)
 
 
 def _validate_on(engine, inputs, reads, layers, origin, quiet) -> tuple:

@@ -44,6 +44,7 @@ from . import formats
 from ._locks import check_target, claim
 from ._progress import write_progress
 from ._signals import terminate_as_interrupt
+from .colorimetry import seen_as_written
 from .models.combinators import Average
 from .errors import BrdftabError, ParameterError, ValidationError, shown
 from .grids import Grid
@@ -460,7 +461,7 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
             raise InvalidOutput(_refusal(report_out, source, target))
         if (resampled or folded) and checked is not None and checked is not table and not allow_invalid:
             # judge the resampling before anything is written
-            gate, _ = difference(brdf, checked, n_check)
+            gate, _ = difference(seen_as_written(brdf, checked, options), checked, n_check)
             beyond = gate.exceeds() if gate is not None else []
             if beyond:
                 raise InvalidOutput(f"refusing to write {target}: it misrepresents {source}: relative error of f at "
@@ -480,7 +481,7 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
                 result.note = f"format {fmt.name} cannot be read back; no difference computed"
             else:
                 # against what was resampled: the input, or its average when it was folded
-                result.difference, result.note = difference(brdf, back, n_check)
+                result.difference, result.note = difference(seen_as_written(brdf, back, options), back, n_check)
                 if not result.target_grid and getattr(back, "grid", None) is not None:
                     result.target_grid = back.grid.describe()
     return result

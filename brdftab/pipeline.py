@@ -181,8 +181,20 @@ class _Job:
         # φh average or symmetrization): then the table's provenance names what it holds
         made_from = getattr(self.checked, "ds", None)
         derived = made_from is not None and made_from.attrs.get("model") != spec.model.name
+        reference, wavelengths = _reference(spec, self)
         return guard(self.checked, layers, allow_invalid=allow_invalid, what=what,
-                     reference=None if derived else spec.model, wavelengths=spec.wavelengths, subject=subject)
+                     reference=None if derived else reference, wavelengths=wavelengths, subject=subject)
+
+
+def _reference(spec, job):
+    """The model a job's stored values are judged against, and the wavelengths to judge at: the
+    spec's model at the spec's wavelengths, or, for a spectral model written in colour (a format
+    that stores colour), the model seen in that colour (:func:`brdftab.colorimetry.to_colour`
+    with the job's options), without wavelengths."""
+    from .colorimetry import seen_as_written
+
+    reference = seen_as_written(spec.model, job.checked, job.options, spec.wavelengths)
+    return reference, (spec.wavelengths if reference is spec.model else None)
 
 
 def _jobs(spec, planned, provenance, progress) -> list:
@@ -297,7 +309,7 @@ def _judge_sampling(spec: Spec, jobs) -> None:
     for job in jobs:
         if job.planned.format.prepare is None or not isinstance(job.checked, BRDF):
             continue
-        gate, _ = difference(spec.model, job.checked)
+        gate, _ = difference(_reference(spec, job)[0], job.checked)
         beyond = gate.exceeds() if gate is not None else []
         if beyond:
             raise InvalidOutput(f"refusing to export {job.planned.target}: its {job.planned.format.name} samples "
@@ -309,6 +321,14 @@ def _judge_sampling(spec: Spec, jobs) -> None:
 def _n_channels(spec: Spec) -> int:
     layout = spec.model.layout
     return layout.n_out(layout.resolve(spec.wavelengths))
+
+
+def _group_channels(spec: Spec, members, n: int) -> int:
+    """Channels of the table one grid's outputs hold: three for a spectral model written only to
+    formats that store colour (converted as it is sampled), else the model's ``n``."""
+    if spec.model.spectral and members and all(m.format.colour and m.format.prepare is not None for m in members):
+        return 3
+    return n
 
 
 def _in_memory_bytes(grid, n: int) -> float:
@@ -335,7 +355,7 @@ def _check_memory(spec: Spec, planned) -> None:
     for grid, members in _groups(planned):
         if grid is None or _streams(spec, grid, members):  # (a format sampling the model itself on a
             continue                                       # grid it names, like MERL's, holds it whole)
-        need = _in_memory_bytes(grid, n)
+        need = _in_memory_bytes(grid, _group_channels(spec, members, n))
         if need > budget:
             whole = [m.target.name for m in members if m.format.stream is None]
             raise BrdftabError(

@@ -148,18 +148,18 @@ def test_convert_into_every_registered_format(merl_nc, tmp_path, writable):
     for name in writable:
         fmt = formats.FORMATS[name]
         out = tmp_path / f"out-{name}{fmt.extensions[0]}"
-        proc = _run("convert", merl_nc, out, "--to", name)
+        proc = _cli("convert", merl_nc, out, "--to", name)  # in process: twelve runs on the MERL grid
         assert "Traceback" not in proc.stderr
-        if proc.returncode == 0:
+        if proc.exit_code == 0:
             assert (out.is_file() and out.stat().st_size > 0) or formats.is_store(out), name  # a file or a store
             assert proc.stdout.startswith(f"wrote {out}"), proc.stdout
             if fmt.read is not None:  # and back again, onto a grid brdftab writes
                 back = tmp_path / f"back-{name}.nc"
-                proc = _run("convert", out, back, "--grid", "merl")
-                assert proc.returncode in (0, 1, 2), proc.stderr
+                proc = _cli("convert", out, back, "--grid", "merl")
+                assert proc.exit_code in (0, 1, 2), proc.stderr
                 assert "Traceback" not in proc.stderr and "internal error" not in proc.stderr, proc.stderr
         else:
-            _one_error(proc.stderr, proc.returncode, exit_code=proc.returncode)
+            _one_error(proc.stderr, proc.exit_code, exit_code=proc.exit_code)
             assert not out.exists()
         assert _partials(tmp_path) == []
 

@@ -101,7 +101,7 @@ def test_explicit_axes_and_other_folds_round_trip(tmp_path, grid):
 def test_spectral_and_grey_channels(tmp_path):
     lam = models.create("lambert", albedo={"wavelengths_nm": [400, 700], "values": [0.2, 0.8]})
     t = tabulate(lam, RusinkiewiczGrid(3, 4, 2), wavelengths=[400, 550.5, 700], progress=False)
-    brdftab.save(t, tmp_path / "s.exr")
+    brdftab.save(t, tmp_path / "s.exr", colour="spectral")
     with OpenEXR.File(str(tmp_path / "s.exr"), separate_channels=True) as f:
         assert sorted(f.parts[0].channels) == ["400nm", "550.5nm", "700nm"]
     back = brdftab.open(tmp_path / "s.exr")

@@ -21,7 +21,7 @@ from brdftab.brdf import BRDF
 from brdftab.channels import Layout
 from brdftab.checks import run_checks
 from brdftab.cli import main
-from brdftab.errors import BrdftabError, FormatError
+from brdftab.errors import BrdftabError, BrdftabWarning, FormatError
 from brdftab.grids import RusinkiewiczGrid, merl_grid
 from brdftab.table import Table, make_table, tabulate
 
@@ -452,14 +452,29 @@ def test_non_reciprocal_source_is_refused_unless_symmetrized(tmp_path):
         np.testing.assert_allclose(got[above], _NonReciprocal.C[c] * sym[above], rtol=1e-12)
 
 
-def test_spectral_and_odd_channels_are_refused(tmp_path):
-    spec = models.create("lambert", albedo={"wavelengths_nm": [400, 700], "values": [0.2, 0.8]})
-    with pytest.raises(FormatError, match="spectral"):
-        brdftab.save(spec, tmp_path / "s.binary")
+def test_odd_channels_are_refused_and_spectra_are_written_in_srgb(tmp_path):
+    """Channels other than R, G, B (or grey) are refused; a spectral BRDF is written as
+    colour-science's linear sRGB of its spectrum (here the model's own two wavelengths, which
+    colour-science interpolates linearly and integrates), saying so in one warning."""
+    import warnings
+
+    import colour
+
     two = make_table(np.zeros((3, 3, 3, 2)), RusinkiewiczGrid(3, 3, 3), Layout(("a", "b")))
     with pytest.raises(FormatError, match="R, G, B"):
         brdftab.save(two, tmp_path / "t.binary")
     assert list(tmp_path.iterdir()) == []
+    spec = models.create("lambert", albedo={"wavelengths_nm": [400, 700], "values": [0.2, 0.8]})
+    with pytest.warns(BrdftabWarning, match="2 wavelengths .* sRGB .*D65"):
+        brdftab.save(spec, tmp_path / "s.binary")
+    cmfs, d65 = colour.colorimetry.handle_spectral_arguments(illuminant_default="D65")
+    sd = colour.SpectralDistribution([0.2 / np.pi, 0.8 / np.pi], [400.0, 700.0],
+                                     interpolator=colour.LinearInterpolator)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rgb = colour.XYZ_to_RGB(colour.sd_to_XYZ(sd, cmfs, d65, method="Integration") / 100, "sRGB")
+    got = brdftab.open(tmp_path / "s.binary").eval([0.3, 0.1, 0.9], [-0.2, 0.4, 0.8])
+    np.testing.assert_allclose(got, rgb, rtol=1e-12)
 
 
 @pytest.mark.parametrize("options, key", [

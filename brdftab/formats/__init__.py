@@ -94,6 +94,9 @@ class FileFormat:
     #: True for a format brdftab recognises (to say what a file is) but neither reads nor
     #: writes (Zemax/LightTools text .bsdf): lists of usable formats leave it out.
     recognised_only: bool = False
+    #: True for a format that stores colour channels: a spectral source is written converted
+    #: to three colour channels through colour-science (:mod:`brdftab.colorimetry`).
+    colour: bool = False
     #: Stated precision: the largest relative difference between what the writer wrote (the
     #: table, or its own sampling) and what the reader returns (the format contract tests it).
     precision: float = 0.0

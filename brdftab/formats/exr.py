@@ -83,8 +83,34 @@ def _openexr():
 # Grids and options
 
 
-def check_options(phi_d_deg=None):
+_COLOUR = ("rgb", "spectral")
+
+
+def check_options(phi_d_deg=None, colour="rgb", illuminant="D65", observer="cie1931-2"):
     _slices(phi_d_deg)
+    if not isinstance(colour, str) or colour not in _COLOUR:
+        raise ParameterError("colour", f"expected 'rgb' or 'spectral', got {colour!r}")
+    if (illuminant, observer) != ("D65", "cie1931-2"):
+        from ..colorimetry import from_options
+
+        from_options(illuminant, observer)
+
+
+def _in_colour(table, colour="rgb", illuminant="D65", observer="cie1931-2"):
+    """The table an EXR file holds: a spectral table converted to linear sRGB through
+    colour-science (:mod:`brdftab.colorimetry`, recorded in the header) unless ``colour`` is
+    ``"spectral"`` (one channel per wavelength, named like ``550nm``)."""
+    if not table.spectral or colour == "spectral":
+        return table
+    from ..colorimetry import from_options, table_to_colour
+
+    return table_to_colour(table, from_options(illuminant, observer))
+
+
+def stored_exr(table, phi_d_deg=None, colour="rgb", illuminant="D65", observer="cie1931-2"):
+    """What a reader of the EXR file gets back: the table in colour (:func:`_in_colour`), its
+    samples rounded to float32 pixels."""
+    return cast_samples(_in_colour(table, colour, illuminant, observer), np.float32)
 
 
 def _slices(phi_d_deg):
@@ -137,6 +163,12 @@ def _slice_grid(base, phi):
 
 # --------------------------------------------------------------------------------------------
 # Writing
+
+
+def _colour_params():
+    from ..colorimetry import PARAMS
+
+    return tuple(p for p in PARAMS if p.name != "wavelengths_nm")
 
 
 def _number_text(x: float) -> str:
@@ -266,11 +298,13 @@ def _albedo_attrs(ds) -> dict:
     return out
 
 
-def write_exr(table, path, phi_d_deg=None):
-    """Write ``table`` (an isotropic Rusinkiewicz table) as one EXR image per φd node."""
+def write_exr(table, path, phi_d_deg=None, colour="rgb", illuminant="D65", observer="cie1931-2"):
+    """Write ``table`` (an isotropic Rusinkiewicz table) as one EXR image per φd node; a
+    spectral table in linear sRGB unless ``colour = "spectral"`` (:func:`_in_colour`)."""
     from ..table import warn_specular_dropped
 
-    check_options(phi_d_deg)
+    check_options(phi_d_deg, colour, illuminant, observer)
+    table = _in_colour(table, colour, illuminant, observer)
     OpenEXR = _openexr()
     if not _is_isotropic_rusinkiewicz(table.grid):
         raise FormatError(f"EXR slices need a table on an isotropic Rusinkiewicz grid, not on "
@@ -698,7 +732,11 @@ register(FileFormat(
     native_grid=native_grid,
     check_options=check_options,
     params=(Param("phi_d_deg", "floats", "phi_d slices in degrees, one part each (default: every phi_d node of the "
-                  "grid).", units="deg", default=None),),
+                  "grid).", units="deg", default=None),
+            Param("colour", "choice", "Spectral tables: rgb (linear sRGB through colour-science, recorded in the "
+                  "header) or spectral (one channel per wavelength, e.g. 550nm).", default="rgb", choices=_COLOUR),
+            ) + _colour_params(),
+    colour=True,
     precision=1e-6,  # float32 pixels
-    stored=lambda table, **_: cast_samples(table, np.float32),  # the pixels are float32
+    stored=stored_exr,  # the pixels are float32, a spectral table in colour
 ))

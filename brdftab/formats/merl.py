@@ -191,9 +191,9 @@ def _correction(table, values):
 
 
 def write_merl(table, path, sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False,
-               negative="zero"):
+               negative="zero", **colour):
     """Write ``table`` (on the MERL grid, channels R, G, B; see :func:`prepare_merl`) to ``path``."""
-    check_options(sample_position, below_horizon, phi_h_average, symmetrize, negative)
+    check_options(sample_position, below_horizon, phi_h_average, symmetrize, negative, **colour)
     raw = merl_raw(table)
     with open(path, "wb") as fh:
         fh.write(HEADER)
@@ -233,7 +233,8 @@ class _CountKind(Kind):
 register_kind(_CountKind())
 
 
-def check_options(sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False, negative="zero"):
+def check_options(sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False, negative="zero",
+                  illuminant="D65", observer="cie1931-2", wavelengths_nm=None):
     if sample_position is not None and (not isinstance(sample_position, str) or sample_position not in _POSITIONS):
         raise ParameterError("sample_position", f"expected 'bin-centre' or 'lower-edge', got {sample_position!r}")
     if not isinstance(below_horizon, str) or below_horizon not in _BELOW_HORIZON:
@@ -243,6 +244,10 @@ def check_options(sample_position=None, below_horizon="zero", phi_h_average=Fals
     _phi_h_samples(phi_h_average)
     if not isinstance(symmetrize, bool):
         raise ParameterError("symmetrize", f"expected true or false, got {symmetrize!r}")
+    if (illuminant, observer) != ("D65", "cie1931-2"):
+        from ..colorimetry import from_options
+
+        from_options(illuminant, observer)
 
 
 def _phi_h_samples(value) -> int:
@@ -256,7 +261,7 @@ def _phi_h_samples(value) -> int:
 
 
 def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_average=False, symmetrize=False,
-                 negative="zero"):
+                 negative="zero", illuminant="D65", observer="cie1931-2", wavelengths_nm=None):
     """The RGB table on the MERL grid that :func:`write_merl` writes for ``brdf``.
 
     A table already on the target MERL grid is copied. Anything else is tabulated at the
@@ -273,13 +278,20 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
     writes them as they are (read back as missing). Samples the source declares missing stay
     markers; negative values of an analytic model are left for the non-negative check (written
     anyway, with ``allow_invalid``, they are markers and read back as missing).
+
+    A spectral source is written in linear sRGB converted through colour-science
+    (:func:`brdftab.colorimetry.convert_for_writer`: ``illuminant``, ``observer``, and for a
+    model ``wavelengths_nm``); MERL files hold no metadata, so one warning line says so.
     """
+    from ..colorimetry import convert_for_writer
     from ..table import Table, tabulate
 
     from ..table import warn_specular_dropped
 
-    check_options(sample_position, below_horizon, phi_h_average, symmetrize, negative)
+    check_options(sample_position, below_horizon, phi_h_average, symmetrize, negative, illuminant, observer,
+                  wavelengths_nm)
     warn_specular_dropped(brdf, "the MERL .binary format")
+    brdf = convert_for_writer(brdf, "MERL .binary", illuminant, observer, wavelengths_nm)
     target = grid if _is_merl_grid(grid) else merl_grid(sample_position or "bin-centre")
     n_phi_h = _phi_h_samples(phi_h_average)
     _check_channels(brdf)
@@ -350,9 +362,15 @@ def _clamp_negatives(table, negative: str):
     return out
 
 
+def _colour_params():
+    from ..colorimetry import PARAMS
+
+    return PARAMS
+
+
 def _check_channels(brdf) -> None:
     if brdf.spectral:
-        raise FormatError(f"MERL files store R, G, B and '{brdf.name}' is spectral; tabulate it in RGB first")
+        raise FormatError(f"MERL files store R, G, B and '{brdf.name}' is spectral")
     if brdf.channels not in (RGB, ("mono",)):
         raise FormatError(f"MERL files store R, G, B; '{brdf.name}' has channels {', '.join(brdf.channels)}")
 
@@ -382,6 +400,7 @@ register(FileFormat(
     native_grid=native_grid,
     prepare=prepare_merl,
     check_options=check_options,
+    colour=True,
     params=(
         Param("sample_position", "choice", "Where tabulated samples sit in MERL's bins (default: bin-centre).",
               default=None, choices=_POSITIONS),
@@ -392,6 +411,6 @@ register(FileFormat(
         Param("symmetrize", "bool", "Write (f(wi, wo) + f(wo, wi)) / 2 of a non-reciprocal BRDF.", default=False),
         Param("negative", "choice", "Negative samples that are data (measurement noise): written as 0, or as they "
               "are (MERL reads them as missing).", default="zero", choices=_NEGATIVE),
-    ),
+    ) + _colour_params(),
     precision=1e-12,  # float64, scaled per channel
 ))
