@@ -19,6 +19,7 @@ returns PNG bytes. The kinds (:data:`KINDS`, :func:`figure` dispatches by name):
   values at given directions in the same projection (where a check fails, for instance);
 * ``albedo`` (:func:`albedo`) — the directional albedo a(θi) = ∫ f cosθo dωo, integrated by
   :func:`brdftab.integrate.albedo_curve`, with the white-sky albedo in the legend;
+  :func:`albedo_values` draws a curve already computed (an albedo check's);
 * ``compare`` (:func:`compare`) — two BRDFs' in-plane curves and, below, their difference
   (or ratio).
 
@@ -59,7 +60,7 @@ from .errors import BrdftabError
 from .geometry import hd_to_io, sph_to_vec
 
 __all__ = ["KINDS", "QUANTITIES", "FORMATS", "MAX_WAVELENGTHS", "figure", "in_plane", "polar", "slice_image",
-           "hemisphere", "hemisphere_values", "albedo", "compare", "equal_area", "equal_area_inverse", "artists",
+           "hemisphere", "hemisphere_values", "albedo", "albedo_values", "compare", "equal_area", "equal_area_inverse", "artists",
            "save", "to_png_bytes", "theta_o_in_plane", "in_plane_directions"]
 
 KINDS = ("in-plane", "polar", "slice", "hemisphere", "albedo", "compare")
@@ -131,6 +132,25 @@ def _wavelength_colour(lam: float):
     return colormaps["turbo"](float(np.clip((lam - 380.0) / 400.0, 0.0, 1.0)))
 
 
+def _colours(names) -> list:
+    """Colours of channels by name: R, G, B, mono their own, ``"550 nm"`` its wavelength's hue,
+    other names a cycle."""
+    out, k = [], 0
+    for n in names:
+        n = str(n)
+        if n in _CHANNEL_COLOURS:
+            out.append(_CHANNEL_COLOURS[n])
+            continue
+        try:
+            out.append(_wavelength_colour(float(n.removesuffix("nm").strip())))
+            continue
+        except ValueError:
+            pass
+        out.append(_CYCLE[k % len(_CYCLE)])
+        k += 1
+    return out
+
+
 def _pick(lam, n: int) -> np.ndarray:
     lam = np.asarray(lam, float)
     if lam.size <= n:
@@ -156,13 +176,7 @@ def _series(brdf, wavelengths=None, rgb: bool = False, channel=None) -> _Series:
         s = _Series([f"{x:g} nm" for x in lam], [_wavelength_colour(x) for x in lam], lam)
     else:
         names = list(brdf.channels)
-        colours, k = [], 0
-        for n in names:
-            if n in _CHANNEL_COLOURS:
-                colours.append(_CHANNEL_COLOURS[n])
-            else:
-                colours.append(_CYCLE[k % len(_CYCLE)])
-                k += 1
+        colours = _colours(names)
         s = _Series(names, colours, None)
     if channel is not None:
         if channel not in s.names:
@@ -592,35 +606,57 @@ def albedo(brdf, *, theta_i_deg=None, phi_i_deg=0.0, wavelengths=None, rgb: bool
     theta = _theta_list(np.arange(0.0, 90.0, 3.0) if theta_i_deg is None else theta_i_deg)
     phis = [float(p) for p in np.atleast_1d(np.asarray(phi_i_deg, float))]
     series = _series(brdf, wavelengths, rgb, channel)
-    curve = albedo_curve(brdf, np.radians(theta), np.radians(phis), None if series.rgb else series.lam)
+    curve = albedo_curve(brdf, np.radians(theta), np.radians(phis), series.lam)
     values = curve.values
     if series.rgb:  # the albedo is linear in f: the albedo spectra through the same conversion
-        curve = albedo_curve(brdf, np.radians(theta), np.radians(phis), series.lam)
         from .colorimetry import spectral_to_rgb
 
-        values = np.asarray(spectral_to_rgb(curve.values, series.lam), float)
-    white = [None] * values.shape[-1]
-    if values.shape[0] > 1:
-        from .integrate import white_sky_albedo
+        values = np.asarray(spectral_to_rgb(values, series.lam), float)
+    keep = _kept(series)
+    cov = float(np.nanmin(curve.coverage)) if curve.coverage.size else 1.0
+    note = f"coverage ≥ {100 * cov:.3g} % of the projected solid angle" if cov < 0.999 else ""
+    return albedo_values(theta, values[..., keep], [series.names[c] for c in keep], phi_i_deg=phis,
+                         colours=[series.colours[c] for c in keep], title=title or _title(brdf, label, note))
 
-        white = white_sky_albedo(curve.theta_i, values.mean(axis=1))
+
+def albedo_values(theta_i_deg, values, channels=None, *, phi_i_deg=None, limit=None, colours=None,
+                  title=None) -> Figure:
+    """A given albedo curve: ``values[n_θ, C]`` (or ``[n_θ, n_φ, C]`` at each of ``phi_i_deg``)
+    over ``theta_i_deg``, one line per channel (``channels``: names), with the white-sky albedo
+    of each (from the mean over φi) in the legend; ``limit`` (an energy threshold) dashed."""
+    from .integrate import white_sky_albedo
+
+    theta = np.asarray(theta_i_deg, float).reshape(-1)
+    v = np.asarray(values, float)
+    if v.ndim == 1:
+        v = v[:, None]
+    if v.ndim == 2:
+        v = v[:, None, :]
+    if v.shape[0] != theta.size:
+        raise BrdftabError(f"{theta.size} incidence angles but {v.shape[0]} albedo values")
+    phis = [0.0] if phi_i_deg is None else [float(p) for p in np.atleast_1d(np.asarray(phi_i_deg, float))]
+    names = [str(c) for c in channels] if channels is not None else (
+        ["mono"] if v.shape[-1] == 1 else [f"c{i}" for i in range(v.shape[-1])])
+    colours = list(colours) if colours is not None else _colours(names)
+    white = white_sky_albedo(np.radians(theta), v.mean(axis=1)) if theta.size > 1 else [None] * v.shape[-1]
     fig = _new_figure()
     ax = fig.add_subplot()
     for j, p in enumerate(phis):
-        for c in _kept(series):
-            name = series.names[c] + (f", φi = {p:g}°" if len(phis) > 1 else "")
-            if white[c] is not None and j == 0:
-                name += f" (white-sky {white[c]:.4g})"
-            ax.plot(theta, values[:, j, c], color=series.colours[c], linestyle=_STYLES[j % len(_STYLES)],
-                    marker=".", label=name, gid=f"albedo|phi_i={p:g}|channel={series.names[c]}")
+        for c, name in enumerate(names):
+            text = name + (f", φi = {p:g}°" if len(phis) > 1 else "")
+            if white[c] is not None and j == 0 and np.isfinite(white[c]):
+                text += f" (white-sky {white[c]:.4g})"
+            ax.plot(theta, v[:, j, c], color=colours[c], linestyle=_STYLES[j % len(_STYLES)], marker=".",
+                    label=text, gid=f"albedo|phi_i={p:g}|channel={name}")
+    if limit is not None:
+        ax.axhline(float(limit), color="tab:red", linestyle="--", lw=1.0, label=f"limit {float(limit):g}",
+                   gid="limit")
     ax.set_xlabel("θi [deg]")
     ax.set_ylabel("directional albedo a(θi) = ∫ f_r cos θo dωo [dimensionless]")
     ax.set_xlim(0, 90)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
-    cov = float(np.nanmin(curve.coverage)) if curve.coverage.size else 1.0
-    note = f"coverage ≥ {100 * cov:.3g} % of the projected solid angle" if cov < 0.999 else ""
-    ax.set_title(title or _title(brdf, label, note), fontsize=9)
+    ax.set_title(title or "directional albedo", fontsize=9)
     return fig
 
 

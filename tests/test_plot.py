@@ -501,3 +501,47 @@ def test_a_spectral_spec_is_plotted_at_a_few_of_its_wavelengths(tmp_path, monkey
     (j,) = np.flatnonzero(np.isclose(line.get_xdata(), 30.0))
     assert line.get_ydata()[j] == pytest.approx(model.eval(*in_plane_pair(30, 30.0), [550.0])[0], rel=1e-12)
     assert not (tmp_path / "s.nc").exists()          # plotted, not tabulated
+
+
+def test_spectral_table_as_srgb(spectral_table):
+    """``rgb=True``: the spectra at every wavelength of the table through
+    :func:`brdftab.colorimetry.spectral_to_rgb` (D65, CIE 1931 2°), drawn as R, G, B."""
+    from brdftab.colorimetry import spectral_to_rgb
+
+    lam = spectral_table.wavelengths
+    fig = plot.in_plane(spectral_table, theta_i_deg=[35], rgb=True)
+    drawn = plot.artists(fig)
+    assert set(drawn) == {f"theta_i=35|channel={c}" for c in "RGB"}
+    for theta_o in (-20.0, 35.0, 70.0):
+        spectrum = spectral_table.eval(*in_plane_pair(35, theta_o), lam)
+        rgb = spectral_to_rgb(spectrum, lam)
+        assert rgb.shape == (3,)
+        for c, name in enumerate("RGB"):
+            line = drawn[f"theta_i=35|channel={name}"]
+            (j,) = np.flatnonzero(np.isclose(line.get_xdata(), theta_o))
+            assert line.get_ydata()[j] == pytest.approx(rgb[c], rel=1e-12)
+            assert line.get_color() == {"R": "red", "G": "green", "B": "blue"}[name]
+    # the albedo in sRGB is the sRGB of the albedo spectrum (both are linear in f)
+    from brdftab.integrate import directional_albedo
+
+    y = plot.artists(plot.albedo(spectral_table, theta_i_deg=[0, 50], rgb=True))
+    spectrum = directional_albedo(spectral_table, np.radians([0.0, 50.0]), 0.0, lam)
+    expected = spectral_to_rgb(spectrum, lam)
+    for c, name in enumerate("RGB"):
+        np.testing.assert_allclose(y[f"albedo|phi_i=0|channel={name}"].get_ydata(), expected[:, c], rtol=1e-9)
+    with pytest.raises(brdftab.BrdftabError, match="sRGB needs a spectrum"):
+        plot.in_plane(models.create("lambert", albedo=0.5), rgb=True)
+
+
+def test_albedo_values_draws_a_given_curve_with_its_limit():
+    theta = [0.0, 30.0, 60.0, 85.0]
+    values = np.array([[0.5, 0.4], [0.52, 0.41], [0.6, 0.45], [1.2, 0.5]])
+    fig = plot.albedo_values(theta, values, ["R", "550 nm"], limit=1.01, title="from a check")
+    drawn = plot.artists(fig)
+    np.testing.assert_array_equal(drawn["albedo|phi_i=0|channel=R"].get_ydata(), values[:, 0])
+    np.testing.assert_array_equal(drawn["albedo|phi_i=0|channel=550 nm"].get_xdata(), theta)
+    assert drawn["albedo|phi_i=0|channel=R"].get_color() == "red"
+    assert np.allclose(drawn["limit"].get_ydata(), 1.01)
+    assert fig.axes[0].get_title() == "from a check"
+    with pytest.raises(brdftab.BrdftabError, match="4 incidence angles but 3"):
+        plot.albedo_values(theta, values[:3])
