@@ -84,7 +84,7 @@ def _source(path: Path):
                    "difference.")
 @click.option("--theta-i-deg", "theta_i", metavar="DEG[,DEG...]",
               help="Incidence angles in degrees (default 0,30,60; hemisphere: one, default 30; albedo: 0 to 87 "
-                   "in 3° steps).")
+                   "in 3° steps; a gonio table: its own).")
 @click.option("--phi-i-deg", "phi_i", type=float, default=None,
               help="Azimuth of the plane of incidence in degrees (anisotropic BRDFs; default 0).")
 @click.option("--phi-d-deg", "phi_d", type=float, default=None, help="slice: the φd of the image (default 90).")

@@ -323,9 +323,19 @@ def in_plane_directions(theta_i_deg, theta_o_deg, phi_i_deg=0.0):
     return wi, wo
 
 
-def _theta_list(theta_i_deg, default=THETA_I_DEG) -> list:
+def _own_theta_i(brdf, n: int):
+    """A gonio table's own incidence angles [deg] (at most ``n``, evenly picked), or None."""
+    for a in getattr(getattr(brdf, "grid", None), "axes", ()):
+        if a.name == "theta_i":
+            deg = np.round(np.degrees(np.asarray(a.values, float)), 9)
+            return list(_pick(deg[deg < 90.0], n)) or None
+    return None
+
+
+def _theta_list(theta_i_deg, default=THETA_I_DEG, brdf=None, n: int = 4) -> list:
     if theta_i_deg is None:
-        theta_i_deg = default
+        own = _own_theta_i(brdf, n)
+        theta_i_deg = own if own is not None else default
     vals = [float(x) for x in np.atleast_1d(np.asarray(theta_i_deg, float))]
     for t in vals:
         if not (0.0 <= t < 90.0) or not math.isfinite(t):
@@ -365,7 +375,7 @@ def in_plane(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str = 
     """In-plane curves of ``quantity`` against θo [deg], one per incidence angle θi [deg] and
     channel. ``points`` — rows (θi, θo, value) — are marked (a paper's printed values)."""
     q = _quantity(quantity)
-    theta_i = _theta_list(theta_i_deg)
+    theta_i = _theta_list(theta_i_deg, brdf=brdf)
     series = _series(brdf, wavelengths, rgb, channel)
     theta_o, v = _curves(brdf, theta_i, phi_i_deg, quantity, series)
     fig = _new_figure()
@@ -400,7 +410,7 @@ def polar(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str = "br
     """The in-plane curves in polar axes: the angle is θo from the normal (specular side to the
     right), the radius the quantity."""
     q = _quantity(quantity)
-    theta_i = _theta_list(theta_i_deg)
+    theta_i = _theta_list(theta_i_deg, brdf=brdf)
     series = _series(brdf, wavelengths, rgb, channel)
     theta_o, v = _curves(brdf, theta_i, phi_i_deg, quantity, series)
     fig = _new_figure((6.4, 4.8))
@@ -534,7 +544,7 @@ def hemisphere(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str 
     an n × n image (NaN outside the disc). The incident direction is marked ``+``, its mirror
     direction ``×``."""
     q = _quantity(quantity)
-    theta_i = _theta_list(theta_i_deg, default=(30.0,))
+    theta_i = _theta_list(theta_i_deg, default=(30.0,), brdf=brdf, n=1)
     if len(theta_i) != 1:
         raise BrdftabError("a hemisphere map shows one incidence angle; give one theta_i")
     ti = math.radians(theta_i[0])
@@ -603,7 +613,7 @@ def albedo(brdf, *, theta_i_deg=None, phi_i_deg=0.0, wavelengths=None, rgb: bool
     albedo, the title the smallest coverage when the BRDF lacks data somewhere."""
     from .integrate import albedo_curve
 
-    theta = _theta_list(np.arange(0.0, 90.0, 3.0) if theta_i_deg is None else theta_i_deg)
+    theta = _theta_list(theta_i_deg, np.arange(0.0, 90.0, 3.0), brdf, n=10 ** 6)
     phis = [float(p) for p in np.atleast_1d(np.asarray(phi_i_deg, float))]
     series = _series(brdf, wavelengths, rgb, channel)
     curve = albedo_curve(brdf, np.radians(theta), np.radians(phis), series.lam)
@@ -671,7 +681,7 @@ def compare(brdf, other, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: 
     brdf`` in the quantity's unit (or ``other / brdf`` with ``ratio``). Their channels must
     agree (a grey one broadcasts against the other's)."""
     q = _quantity(quantity)
-    theta_i = _theta_list(theta_i_deg)
+    theta_i = _theta_list(theta_i_deg, brdf=brdf)
     series = _series(brdf, wavelengths, rgb, channel)
     if series.lam is not None:  # both at the same wavelengths (through the same sRGB conversion)
         other_series = _Series(series.names, series.colours, series.lam, series.rgb, series.keep)

@@ -545,3 +545,20 @@ def test_albedo_values_draws_a_given_curve_with_its_limit():
     assert fig.axes[0].get_title() == "from a check"
     with pytest.raises(brdftab.BrdftabError, match="4 incidence angles but 3"):
         plot.albedo_values(theta, values[:3])
+
+
+def test_a_gonio_table_is_drawn_at_its_own_incidence_angles(tmp_path):
+    from brdftab.grids import SphericalGrid
+
+    grid = SphericalGrid(np.radians([20.0, 40.0, 90.0]), np.radians([0.0]), np.radians(np.arange(0.0, 41.0, 5.0)),
+                         np.radians(np.arange(0.0, 360.0, 30.0)))
+    brdftab.save(tabulate(models.create("lambert", albedo=0.5), grid, progress=False), tmp_path / "g.nc")
+    table = brdftab.open(tmp_path / "g.nc")
+    with pytest.warns(brdftab.errors.BrdftabWarning, match="outside the domain"):   # θo beyond 40°: one warning
+        drawn = plot.artists(plot.in_plane(table))
+    assert set(drawn) == {"theta_i=20|channel=mono", "theta_i=40|channel=mono"}    # not 0, 30, 60; 90 is grazing
+    x, y = drawn["theta_i=20|channel=mono"].get_xdata(), drawn["theta_i=20|channel=mono"].get_ydata()
+    np.testing.assert_allclose(y[np.abs(x) <= 40.0], 0.5 / np.pi, rtol=1e-12)        # inside its θo domain
+    assert np.all(np.isnan(y[np.abs(x) > 40.0 + 1e-9]))                             # outside: a gap, not 0
+    line = plot.artists(plot.albedo(table))["albedo|phi_i=0|channel=mono"]
+    np.testing.assert_array_equal(line.get_xdata(), [20.0, 40.0])
