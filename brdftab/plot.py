@@ -60,8 +60,9 @@ from .errors import BrdftabError
 from .geometry import hd_to_io, sph_to_vec
 
 __all__ = ["KINDS", "QUANTITIES", "FORMATS", "MAX_WAVELENGTHS", "figure", "in_plane", "polar", "slice_image",
-           "hemisphere", "hemisphere_values", "albedo", "albedo_values", "compare", "equal_area", "equal_area_inverse", "artists",
-           "save", "to_png_bytes", "theta_o_in_plane", "in_plane_directions"]
+           "hemisphere", "hemisphere_values", "hemisphere_grid", "albedo", "albedo_values", "compare", "equal_area",
+           "equal_area_inverse", "artists", "save", "to_png_bytes", "output_format", "parameters_text",
+           "theta_o_in_plane", "in_plane_directions", "pick_evenly"]
 
 KINDS = ("in-plane", "polar", "slice", "hemisphere", "albedo", "compare")
 #: Output formats by extension.
@@ -151,7 +152,8 @@ def _colours(names) -> list:
     return out
 
 
-def _pick(lam, n: int) -> np.ndarray:
+def pick_evenly(lam, n: int) -> np.ndarray:
+    """At most ``n`` of the values ``lam``, evenly spaced by index, the first and last among them."""
     lam = np.asarray(lam, float)
     if lam.size <= n:
         return lam
@@ -170,7 +172,7 @@ def _series(brdf, wavelengths=None, rgb: bool = False, channel=None) -> _Series:
         if wavelengths:
             lam = np.asarray(wavelengths, float)
         elif own is not None:
-            lam = _pick(own, MAX_WAVELENGTHS)
+            lam = pick_evenly(own, MAX_WAVELENGTHS)
         else:
             raise BrdftabError(f"{brdf.name} is spectral: give the wavelengths to plot (--wavelength-nm)")
         s = _Series([f"{x:g} nm" for x in lam], [_wavelength_colour(x) for x in lam], lam)
@@ -328,7 +330,7 @@ def _own_theta_i(brdf, n: int):
     for a in getattr(getattr(brdf, "grid", None), "axes", ()):
         if a.name == "theta_i":
             deg = np.round(np.degrees(np.asarray(a.values, float)), 9)
-            return list(_pick(deg[deg < 90.0], n)) or None
+            return list(pick_evenly(deg[deg < 90.0], n)) or None
     return None
 
 
@@ -564,7 +566,8 @@ def hemisphere(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str 
     axes = fig.subplots(1, len(keep), squeeze=False)[0]
     for ax, c in zip(axes, keep):
         img = ax.imshow(v[..., c], origin="lower", extent=(-1, 1, -1, 1), cmap="inferno",
-                        norm=_norm(v[..., c], use_log), interpolation="nearest", gid=f"hemisphere|channel={series.names[c]}")
+                        norm=_norm(v[..., c], use_log), interpolation="nearest",
+                        gid=f"hemisphere|channel={series.names[c]}")
         _disc_frame(ax)
         xi, yi = equal_area(ti, pi_)
         xm, ym = equal_area(ti, pi_ + np.pi)

@@ -323,7 +323,6 @@ def test_the_command_line_s_static_lists_are_the_module_s():
 
     assert cli_plot.KINDS == plot.KINDS
     assert cli_plot.QUANTITIES == tuple(plot.QUANTITIES)
-    assert cli_plot.EXTENSIONS == tuple(plot.FORMATS)
 
 
 # --------------------------------------------------------------------------------------------
