@@ -415,7 +415,7 @@ def polar(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str = "br
     theta_i = _theta_list(theta_i_deg, brdf=brdf)
     series = _series(brdf, wavelengths, rgb, channel)
     theta_o, v = _curves(brdf, theta_i, phi_i_deg, quantity, series)
-    fig = _new_figure((6.4, 4.8))
+    fig = _new_figure((7.6, 4.6))
     ax = fig.add_subplot(projection="polar")
     ax.set_theta_zero_location("N")
     ax.set_theta_direction(-1)
@@ -425,10 +425,9 @@ def polar(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str = "br
     if _log_wanted(log, v):
         ax.set_rscale("log")
         _log_limits(ax, v, axis="r")
-    ax.set_xlabel("θo [deg]  (right: specular side)")
-    ax.text(0.5, -0.02, f"radius: {q.axis_label}", transform=ax.transAxes, ha="center", va="top", fontsize=8)
-    ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(-0.05, -0.05))
-    ax.set_title(title or _title(brdf, label, _plane_note(brdf, phi_i_deg)), fontsize=9)
+    ax.set_xlabel(f"angle: θo [deg] (right: specular side); radius: {q.axis_label}", fontsize=8, labelpad=-40)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
+    ax.set_title(title or _title(brdf, label, _plane_note(brdf, phi_i_deg), _chars(fig)), fontsize=9)
     return fig
 
 
