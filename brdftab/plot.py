@@ -542,8 +542,9 @@ def hemisphere(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str 
                wavelengths=None, rgb: bool = False, channel=None, n: int = 161, title=None, label=None) -> Figure:
     """The quantity over the exit hemisphere for one incidence (θi, φi) [deg], in the Lambert
     azimuthal equal-area projection (:func:`equal_area`), one panel per channel (at most 3),
-    an n × n image (NaN outside the disc). The incident direction is marked ``+``, its mirror
-    direction ``×``."""
+    an n × n image (NaN outside the disc) of the values at the pixel centres: a lobe narrower
+    than a pixel can fall between them (a larger ``n`` resolves it). The incident direction is
+    marked ``+``, its mirror direction ``×``."""
     q = _quantity(quantity)
     theta_i = _theta_list(theta_i_deg, default=(30.0,), brdf=brdf, n=1)
     if len(theta_i) != 1:
