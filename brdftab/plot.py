@@ -673,6 +673,54 @@ def albedo_values(theta_i_deg, values, channels=None, *, phi_i_deg=None, limit=N
     return fig
 
 
+def albedo_values(theta_i_deg, values, channels=None, *, limit=None, title: str = "") -> Figure:
+    """A directional-albedo curve already computed (e.g. by the albedo check): ``values[T, C]``
+    (or ``[T, P, C]``, the first φi drawn) at ``theta_i_deg[T]``, one line per channel named in
+    ``channels`` (``"R"``, ``"550 nm"``, …; at most :data:`MAX_WAVELENGTHS` of a spectrum,
+    evenly picked), in the channels' colours; ``limit`` draws the energy check's bound."""
+    theta = np.asarray(theta_i_deg, float).reshape(-1)
+    v = np.asarray(values, float)
+    if v.ndim == 3:
+        v = v[:, 0, :]
+    v = v.reshape(theta.size, -1)
+    names = [str(c) for c in channels] if channels is not None else [f"c{i}" for i in range(v.shape[1])]
+    if len(names) != v.shape[1]:
+        raise BrdftabError(f"{len(names)} channel names for {v.shape[1]} albedo channels")
+    keep = list(range(len(names)))
+    if len(keep) > MAX_WAVELENGTHS:
+        keep = sorted(set(np.round(np.linspace(0, len(names) - 1, MAX_WAVELENGTHS)).astype(int).tolist()))
+    fig = _new_figure()
+    ax = fig.add_subplot()
+    k = 0
+    for c in keep:
+        name = names[c]
+        if name in _CHANNEL_COLOURS:
+            colour = _CHANNEL_COLOURS[name]
+        elif name.endswith(" nm") and _is_number(name[:-3]):
+            colour = _wavelength_colour(float(name[:-3]))
+        else:
+            colour, k = _CYCLE[k % len(_CYCLE)], k + 1
+        ax.plot(theta, v[:, c], color=colour, marker=".", label=name, gid=f"albedo|channel={name}")
+    if limit is not None:
+        ax.axhline(1.0 + float(limit) if float(limit) < 0.5 else float(limit), color="tab:red", linestyle="--",
+                   linewidth=1, label="energy limit", gid="limit")
+    ax.set_xlabel("θi [deg]")
+    ax.set_ylabel("directional albedo a(θi) = ∫ f_r cos θo dωo [dimensionless]")
+    ax.set_xlim(0, 90)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=7)
+    ax.set_title(title, fontsize=9)
+    return fig
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
 # --------------------------------------------------------------------------------------------
 # comparison
 

@@ -34,9 +34,9 @@ table { border-collapse: collapse; margin: 0.6em 0; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.5em; text-align: left; vertical-align: top; }
 th { background: #f2f2f2; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
-.pass { color: #1a7f37; font-weight: 600; } .warn { color: #9a6700; font-weight: 600; }
-.fail { color: #cf222e; font-weight: 700; } .skip { color: #6e7781; font-weight: 600; }
-tr.fail td { background: #fff0f0; } tr.warn td { background: #fffbe6; }
+.s-pass { color: #1a7f37; font-weight: 600; } .s-warn { color: #9a6700; font-weight: 600; }
+.s-fail { color: #cf222e; font-weight: 700; } .s-skip { color: #6e7781; font-weight: 600; }
+tr.row-fail td { background: #fff0f0; } tr.row-warn td { background: #fffbe6; }
 .verdict { font-size: 1.05em; } figure { display: inline-block; margin: 0.5em 1em 0.5em 0; }
 figcaption { font-size: 0.85em; color: #555; max-width: 560px; }
 img { max-width: 100%; height: auto; border: 1px solid #eee; }
@@ -67,7 +67,7 @@ def render(entries, errors=(), title: str = "brdftab validation report") -> str:
              f"{len(errors)} could not be read. brdftab {__version__}, {stamp}.</p>"]
     if errors:
         parts.append("<h2>Inputs that could not be read</h2><table><tr><th>input</th><th>error</th></tr>")
-        parts += [f"<tr class=\"fail\"><td>{_e(s)}</td><td>{_e(' '.join(str(x).split()))}</td></tr>"
+        parts += [f"<tr class=\"row-fail\"><td>{_e(s)}</td><td>{_e(' '.join(str(x).split()))}</td></tr>"
                   for s, x in errors]
         parts.append("</table>")
     for i, entry in enumerate(entries):
@@ -96,15 +96,15 @@ def _section(entry: Entry, index: int) -> str:
     r = entry.report
     status = "pass" if r.passed else "fail"
     counts = r.counts()
-    out = [f'<h2 id="input-{index}">{_e(r.subject or "BRDF")} — <span class="{status}">'
+    out = [f'<h2 id="input-{index}">{_e(r.subject or "BRDF")} — <span class="s-{status}">'
            f'{"PASSED" if r.passed else "FAILED"}</span></h2>',
            f"<p>{counts['pass']} pass, {counts['warn']} warn, {counts['fail']} fail, {counts['skip']} skip.</p>",
            "<table><tr><th>check</th><th>family</th><th>level</th><th>status</th><th>figure</th><th>threshold</th>"
            "<th>detail</th></tr>"]
     for o in r.outcomes:
-        out.append(f'<tr class="{_e(o.status)}" id="check-{index}-{_e(o.name)}"><td>{_e(o.name)}</td>'
+        out.append(f'<tr class="row-{_e(o.status)}" id="check-{index}-{_e(o.name)}"><td>{_e(o.name)}</td>'
                    f"<td>{_e(o.family)}</td><td>{_e(o.level)}</td>"
-                   f'<td class="{_e(o.status)}">{_e(o.status.upper())}</td><td class="num">{_number(o.figure)}</td>'
+                   f'<td class="s-{_e(o.status)}">{_e(o.status.upper())}</td><td class="num">{_number(o.figure)}</td>'
                    f'<td class="num">{_number(o.threshold)}</td><td>{_e(o.detail)}</td></tr>')
     out.append("</table>")
     figures = _figures(entry)

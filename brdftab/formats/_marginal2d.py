@@ -109,6 +109,27 @@ class Marginal2D:
             weights.append(w)
         return np.asarray(slices), np.asarray(weights)
 
+    def fixed(self, params) -> "Marginal2D":
+        """The distribution at one parameter point ``params`` (one scalar per parameter), as a
+        Marginal2D without parameters: its tables are the parameter interpolation of this one's,
+        summed corner by corner in the order :meth:`_gather` sums them, so it samples, evaluates
+        and inverts to the same bits, without interpolating the corners at every point (a file's
+        albedo rule samples tens of thousands of points at one incidence)."""
+        sl, wt = self._corners([np.full(1, float(p)) for p in params])
+        out = object.__new__(Marginal2D)
+        out.params, out.res, out.n_slices, out.strides = [], (), 1, []
+        out.h, out.w, out.sampling = self.h, self.w, self.sampling
+        names = ("data", "cond", "marg") if self.sampling else ("data",)
+        for name in names:
+            table = getattr(self, name)
+            acc = 0.0
+            for c in range(sl.shape[0]):
+                w = float(wt[c, 0])
+                if w != 0.0 or sl.shape[0] == 1:
+                    acc = acc + w * table[int(sl[c, 0])]
+            setattr(out, name, np.asarray(acc, np.float64)[None])
+        return out
+
     @staticmethod
     def _gather(table, slices, weights, *index):
         """Σ_c weights[c] · table[slices[c], *index]."""

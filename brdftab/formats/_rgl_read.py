@@ -413,8 +413,7 @@ class RGLBSDF(BRDF):
         g = (np.arange(n) + 0.5) / n
         s = np.stack(np.meshgrid(g, g, indexing="xy"), axis=-1).reshape(-1, 2)
         th_i, ph_i = float(elevation(w_in[None])[0]), float(np.arctan2(w_in[1], w_in[0]))
-        params = (np.full(s.shape[0], ph_i), np.full(s.shape[0], th_i))
-        u_m, pdf = self._vndf.sample(s, params)
+        u_m, pdf = self._vndf.fixed((ph_i, th_i)).sample(s)
         th_m = u2theta(u_m[:, 0])
         m = sph(th_m, u2phi(u_m[:, 1]) + (ph_i if self.isotropic else 0.0))
         cos_im = m @ w_in
