@@ -634,36 +634,48 @@ def albedo(brdf, *, theta_i_deg=None, phi_i_deg=0.0, wavelengths=None, rgb: bool
 
 def albedo_values(theta_i_deg, values, channels=None, *, phi_i_deg=None, limit=None, colours=None,
                   title=None) -> Figure:
-    """A given albedo curve: ``values[n_θ, C]`` (or ``[n_θ, n_φ, C]`` at each of ``phi_i_deg``)
-    over ``theta_i_deg``, one line per channel (``channels``: names), with the white-sky albedo
-    of each (from the mean over φi) in the legend; ``limit`` (an energy threshold) dashed."""
+    """A directional-albedo curve already computed (e.g. by the albedo check): ``values[T, C]``
+    (or ``[T, P, C]`` at each of ``phi_i_deg[P]``, one line style each; the first φi when
+    ``phi_i_deg`` is not given) at ``theta_i_deg[T]``, one line per channel named in ``channels``
+    (``"R"``, ``"550 nm"``, …; at most :data:`MAX_WAVELENGTHS` of more, evenly picked) in the
+    channels' colours, with the white-sky albedo of each (from the mean over φi) in the legend.
+    ``limit`` draws the energy check's bound, dashed (a value below 0.5 is its tolerance above 1).
+    Curves are ``gid`` ``"albedo|channel=R"`` (``"albedo|phi_i=30|channel=R"`` with several φi)."""
     from .integrate import white_sky_albedo
 
     theta = np.asarray(theta_i_deg, float).reshape(-1)
     v = np.asarray(values, float)
-    if v.ndim == 1:
-        v = v[:, None]
-    if v.ndim == 2:
-        v = v[:, None, :]
+    if v.ndim == 3 and phi_i_deg is None:
+        v = v[:, :1, :]
+    elif v.ndim < 3:
+        v = v.reshape(v.shape[0] if v.ndim else 1, 1, -1)
     if v.shape[0] != theta.size:
         raise BrdftabError(f"{theta.size} incidence angles but {v.shape[0]} albedo values")
     phis = [0.0] if phi_i_deg is None else [float(p) for p in np.atleast_1d(np.asarray(phi_i_deg, float))]
+    if len(phis) != v.shape[1]:
+        raise BrdftabError(f"{len(phis)} azimuths but albedo values for {v.shape[1]}")
     names = [str(c) for c in channels] if channels is not None else (
         ["mono"] if v.shape[-1] == 1 else [f"c{i}" for i in range(v.shape[-1])])
+    if len(names) != v.shape[-1]:
+        raise BrdftabError(f"{len(names)} channel names for {v.shape[-1]} albedo channels")
     colours = list(colours) if colours is not None else _colours(names)
-    white = white_sky_albedo(np.radians(theta), v.mean(axis=1)) if theta.size > 1 else [None] * v.shape[-1]
+    keep = list(pick_evenly(np.arange(len(names)), MAX_WAVELENGTHS).astype(int))
+    with np.errstate(invalid="ignore"):
+        white = white_sky_albedo(np.radians(theta), v.mean(axis=1)) if theta.size > 1 else [None] * len(names)
     fig = _new_figure()
     ax = fig.add_subplot()
     for j, p in enumerate(phis):
-        for c, name in enumerate(names):
+        for c in keep:
+            name = names[c]
             text = name + (f", φi = {p:g}°" if len(phis) > 1 else "")
             if white[c] is not None and j == 0 and np.isfinite(white[c]):
                 text += f" (white-sky {white[c]:.4g})"
+            gid = f"albedo|phi_i={p:g}|channel={name}" if len(phis) > 1 else f"albedo|channel={name}"
             ax.plot(theta, v[:, j, c], color=colours[c], linestyle=_STYLES[j % len(_STYLES)], marker=".",
-                    label=text, gid=f"albedo|phi_i={p:g}|channel={name}")
+                    label=text, gid=gid)
     if limit is not None:
-        ax.axhline(float(limit), color="tab:red", linestyle="--", lw=1.0, label=f"limit {float(limit):g}",
-                   gid="limit")
+        bound = 1.0 + float(limit) if float(limit) < 0.5 else float(limit)
+        ax.axhline(bound, color="tab:red", linestyle="--", lw=1.0, label=f"energy limit {bound:g}", gid="limit")
     ax.set_xlabel("θi [deg]")
     ax.set_ylabel("directional albedo a(θi) = ∫ f_r cos θo dωo [dimensionless]")
     ax.set_xlim(0, 90)
@@ -671,54 +683,6 @@ def albedo_values(theta_i_deg, values, channels=None, *, phi_i_deg=None, limit=N
     ax.legend(fontsize=7)
     ax.set_title(title or "directional albedo", fontsize=9)
     return fig
-
-
-def albedo_values(theta_i_deg, values, channels=None, *, limit=None, title: str = "") -> Figure:
-    """A directional-albedo curve already computed (e.g. by the albedo check): ``values[T, C]``
-    (or ``[T, P, C]``, the first φi drawn) at ``theta_i_deg[T]``, one line per channel named in
-    ``channels`` (``"R"``, ``"550 nm"``, …; at most :data:`MAX_WAVELENGTHS` of a spectrum,
-    evenly picked), in the channels' colours; ``limit`` draws the energy check's bound."""
-    theta = np.asarray(theta_i_deg, float).reshape(-1)
-    v = np.asarray(values, float)
-    if v.ndim == 3:
-        v = v[:, 0, :]
-    v = v.reshape(theta.size, -1)
-    names = [str(c) for c in channels] if channels is not None else [f"c{i}" for i in range(v.shape[1])]
-    if len(names) != v.shape[1]:
-        raise BrdftabError(f"{len(names)} channel names for {v.shape[1]} albedo channels")
-    keep = list(range(len(names)))
-    if len(keep) > MAX_WAVELENGTHS:
-        keep = sorted(set(np.round(np.linspace(0, len(names) - 1, MAX_WAVELENGTHS)).astype(int).tolist()))
-    fig = _new_figure()
-    ax = fig.add_subplot()
-    k = 0
-    for c in keep:
-        name = names[c]
-        if name in _CHANNEL_COLOURS:
-            colour = _CHANNEL_COLOURS[name]
-        elif name.endswith(" nm") and _is_number(name[:-3]):
-            colour = _wavelength_colour(float(name[:-3]))
-        else:
-            colour, k = _CYCLE[k % len(_CYCLE)], k + 1
-        ax.plot(theta, v[:, c], color=colour, marker=".", label=name, gid=f"albedo|channel={name}")
-    if limit is not None:
-        ax.axhline(1.0 + float(limit) if float(limit) < 0.5 else float(limit), color="tab:red", linestyle="--",
-                   linewidth=1, label="energy limit", gid="limit")
-    ax.set_xlabel("θi [deg]")
-    ax.set_ylabel("directional albedo a(θi) = ∫ f_r cos θo dωo [dimensionless]")
-    ax.set_xlim(0, 90)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7)
-    ax.set_title(title, fontsize=9)
-    return fig
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 # --------------------------------------------------------------------------------------------

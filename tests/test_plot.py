@@ -273,12 +273,12 @@ def test_albedo_curve_is_the_hemispherical_integral(iso_table):
     fig = plot.albedo(iso_table, theta_i_deg=[0, 30, 60])
     drawn = plot.artists(fig)
     for c, name in enumerate("RGB"):
-        line = drawn[f"albedo|phi_i=0|channel={name}"]
+        line = drawn[f"albedo|channel={name}"]
         np.testing.assert_array_equal(line.get_xdata(), [0, 30, 60])
         for j, t in enumerate((0.0, 30.0, 60.0)):
             assert line.get_ydata()[j] == pytest.approx(_albedo_by_quadrature(iso_table, t)[c], abs=2e-3)
     lambert = models.create("lambert", albedo=0.7)
-    y = plot.artists(plot.albedo(lambert, theta_i_deg=[0, 45, 85]))["albedo|phi_i=0|channel=mono"].get_ydata()
+    y = plot.artists(plot.albedo(lambert, theta_i_deg=[0, 45, 85]))["albedo|channel=mono"].get_ydata()
     np.testing.assert_allclose(y, 0.7, rtol=1e-9)
     assert "dimensionless" in fig.axes[0].get_ylabel()
 
@@ -527,7 +527,7 @@ def test_spectral_table_as_srgb(spectral_table):
     spectrum = directional_albedo(spectral_table, np.radians([0.0, 50.0]), 0.0, lam)
     expected = spectral_to_rgb(spectrum, lam)
     for c, name in enumerate("RGB"):
-        np.testing.assert_allclose(y[f"albedo|phi_i=0|channel={name}"].get_ydata(), expected[:, c], rtol=1e-9)
+        np.testing.assert_allclose(y[f"albedo|channel={name}"].get_ydata(), expected[:, c], rtol=1e-9)
     with pytest.raises(brdftab.BrdftabError, match="sRGB needs a spectrum"):
         plot.in_plane(models.create("lambert", albedo=0.5), rgb=True)
 
@@ -537,13 +537,25 @@ def test_albedo_values_draws_a_given_curve_with_its_limit():
     values = np.array([[0.5, 0.4], [0.52, 0.41], [0.6, 0.45], [1.2, 0.5]])
     fig = plot.albedo_values(theta, values, ["R", "550 nm"], limit=1.01, title="from a check")
     drawn = plot.artists(fig)
-    np.testing.assert_array_equal(drawn["albedo|phi_i=0|channel=R"].get_ydata(), values[:, 0])
-    np.testing.assert_array_equal(drawn["albedo|phi_i=0|channel=550 nm"].get_xdata(), theta)
-    assert drawn["albedo|phi_i=0|channel=R"].get_color() == "red"
+    np.testing.assert_array_equal(drawn["albedo|channel=R"].get_ydata(), values[:, 0])
+    np.testing.assert_array_equal(drawn["albedo|channel=550 nm"].get_xdata(), theta)
+    assert drawn["albedo|channel=R"].get_color() == "red"
     assert np.allclose(drawn["limit"].get_ydata(), 1.01)
     assert fig.axes[0].get_title() == "from a check"
     with pytest.raises(brdftab.BrdftabError, match="4 incidence angles but 3"):
         plot.albedo_values(theta, values[:3])
+    with pytest.raises(brdftab.BrdftabError, match="1 channel names for 2"):
+        plot.albedo_values(theta, values, ["R"])
+    # a tolerance is a bound above 1; several azimuths: one line style each; many channels: five
+    per_phi = np.stack([values, values + 0.1], axis=1)
+    drawn = plot.artists(plot.albedo_values(theta, per_phi, ["R", "G"], phi_i_deg=[0, 90], limit=0.01))
+    assert np.allclose(drawn["limit"].get_ydata(), 1.01)
+    np.testing.assert_array_equal(drawn["albedo|phi_i=90|channel=G"].get_ydata(), values[:, 1] + 0.1)
+    assert drawn["albedo|phi_i=90|channel=G"].get_linestyle() != drawn["albedo|phi_i=0|channel=G"].get_linestyle()
+    spectrum = np.linspace(0.1, 0.9, 4 * 31).reshape(4, 31)
+    names = [f"{lam} nm" for lam in range(400, 710, 10)]
+    drawn = plot.artists(plot.albedo_values(theta, spectrum, names))
+    assert sorted(drawn) == sorted(f"albedo|channel={lam} nm" for lam in (400, 480, 550, 620, 700))
 
 
 def test_a_gonio_table_is_drawn_at_its_own_incidence_angles(tmp_path):
@@ -559,5 +571,5 @@ def test_a_gonio_table_is_drawn_at_its_own_incidence_angles(tmp_path):
     x, y = drawn["theta_i=20|channel=mono"].get_xdata(), drawn["theta_i=20|channel=mono"].get_ydata()
     np.testing.assert_allclose(y[np.abs(x) <= 40.0], 0.5 / np.pi, rtol=1e-12)        # inside its θo domain
     assert np.all(np.isnan(y[np.abs(x) > 40.0 + 1e-9]))                             # outside: a gap, not 0
-    line = plot.artists(plot.albedo(table))["albedo|phi_i=0|channel=mono"]
+    line = plot.artists(plot.albedo(table))["albedo|channel=mono"]
     np.testing.assert_array_equal(line.get_xdata(), [20.0, 40.0])
