@@ -14,13 +14,12 @@ import click
 
 from .errors import BrdftabError
 
-__all__ = ["plot", "KINDS", "QUANTITIES", "EXTENSIONS"]
+__all__ = ["plot", "KINDS", "QUANTITIES"]
 
-#: Static copies of :data:`brdftab.plot.KINDS`, ``QUANTITIES`` and ``FORMATS`` (so that
-#: ``--help`` does not import matplotlib); a test holds them equal.
+#: Static copies of :data:`brdftab.plot.KINDS` and ``QUANTITIES`` (so that ``--help`` does not
+#: import matplotlib); a test holds them equal.
 KINDS = ("in-plane", "polar", "slice", "hemisphere", "albedo", "compare")
 QUANTITIES = ("brdf", "brdf-cos", "brf", "relative")
-EXTENSIONS = (".png", ".svg", ".pdf")
 
 
 def _angles(text, option):
@@ -84,7 +83,7 @@ def _source(path: Path):
                    "difference.")
 @click.option("--theta-i-deg", "theta_i", metavar="DEG[,DEG...]",
               help="Incidence angles in degrees (default 0,30,60; hemisphere: one, default 30; albedo: 0 to 87 "
-                   "in 3° steps).")
+                   "in 3° steps; a gonio table: its own).")
 @click.option("--phi-i-deg", "phi_i", type=float, default=None,
               help="Azimuth of the plane of incidence in degrees (anisotropic BRDFs; default 0).")
 @click.option("--phi-d-deg", "phi_d", type=float, default=None, help="slice: the φd of the image (default 90).")
@@ -114,9 +113,9 @@ def plot(source, out, kind, theta_i, phi_i, phi_d, quantity, log, against, ratio
 
     `brdftab plot table.nc -o p.png` draws in-plane curves of f_r for θi = 0, 30, 60°.
     """
-    ext = out.suffix.lower()
-    if ext not in EXTENSIONS:
-        raise BrdftabError(f"{out}: unknown plot format {ext or '(no extension)'!r}; use {', '.join(EXTENSIONS)}")
+    from . import plot as plots
+
+    fmt = plots.output_format(out)  # an unknown extension: one line before anything is read
     given = {"--against": against, "--ratio": ratio or None, "--phi-d-deg": phi_d, "--points": points,
              "--quantity": quantity, "--log/--linear": log, "--phi-i-deg": phi_i, "--theta-i-deg": theta_i}
     allowed = {"in-plane": {"--points", "--quantity", "--log/--linear", "--phi-i-deg", "--theta-i-deg"},
@@ -145,11 +144,11 @@ def plot(source, out, kind, theta_i, phi_i, phi_d, quantity, log, against, ratio
         options["ratio"] = True
     if points is not None:
         options["points"] = read_points(points)
-    from . import plot as plots
-
     brdf, spec_lam = _source(source)
-    if options["wavelengths"] is None and spec_lam is not None and not getattr(brdf, "spectral", False):
-        options["wavelengths"] = list(spec_lam)  # a grey model the spec tabulates per wavelength
+    if options["wavelengths"] is None and spec_lam is not None:
+        # the wavelengths the spec tabulates: a few of them (sRGB: all of them)
+        lam = spec_lam if rgb else plots.pick_evenly(spec_lam, plots.MAX_WAVELENGTHS)
+        options["wavelengths"] = [float(x) for x in lam]
     options["label"] = source.name
     if kind == "compare":
         options["other"], _ = _source(against)
@@ -158,4 +157,4 @@ def plot(source, out, kind, theta_i, phi_i, phi_d, quantity, log, against, ratio
     inputs = [(source, "the plotted file")] + ([(against, "the file compared")] if against is not None else []) + (
         [(points, "the points file")] if points is not None else [])
     plots.save(fig, out, overwrite=overwrite, dpi=dpi, inputs=inputs)
-    click.echo(f"wrote {out} ({kind}, {ext[1:]})")
+    click.echo(f"wrote {out} ({kind}, {fmt})")

@@ -19,6 +19,7 @@ returns PNG bytes. The kinds (:data:`KINDS`, :func:`figure` dispatches by name):
   values at given directions in the same projection (where a check fails, for instance);
 * ``albedo`` (:func:`albedo`) — the directional albedo a(θi) = ∫ f cosθo dωo, integrated by
   :func:`brdftab.integrate.albedo_curve`, with the white-sky albedo in the legend;
+  :func:`albedo_values` draws a curve already computed (an albedo check's);
 * ``compare`` (:func:`compare`) — two BRDFs' in-plane curves and, below, their difference
   (or ratio).
 
@@ -59,8 +60,9 @@ from .errors import BrdftabError
 from .geometry import hd_to_io, sph_to_vec
 
 __all__ = ["KINDS", "QUANTITIES", "FORMATS", "MAX_WAVELENGTHS", "figure", "in_plane", "polar", "slice_image",
-           "hemisphere", "hemisphere_values", "albedo", "compare", "equal_area", "equal_area_inverse", "artists",
-           "save", "to_png_bytes", "theta_o_in_plane", "in_plane_directions"]
+           "hemisphere", "hemisphere_values", "hemisphere_grid", "albedo", "albedo_values", "compare", "equal_area",
+           "equal_area_inverse", "artists", "save", "to_png_bytes", "output_format", "parameters_text",
+           "theta_o_in_plane", "in_plane_directions", "pick_evenly"]
 
 KINDS = ("in-plane", "polar", "slice", "hemisphere", "albedo", "compare")
 #: Output formats by extension.
@@ -131,7 +133,27 @@ def _wavelength_colour(lam: float):
     return colormaps["turbo"](float(np.clip((lam - 380.0) / 400.0, 0.0, 1.0)))
 
 
-def _pick(lam, n: int) -> np.ndarray:
+def _colours(names) -> list:
+    """Colours of channels by name: R, G, B, mono their own, ``"550 nm"`` its wavelength's hue,
+    other names a cycle."""
+    out, k = [], 0
+    for n in names:
+        n = str(n)
+        if n in _CHANNEL_COLOURS:
+            out.append(_CHANNEL_COLOURS[n])
+            continue
+        try:
+            out.append(_wavelength_colour(float(n.removesuffix("nm").strip())))
+            continue
+        except ValueError:
+            pass
+        out.append(_CYCLE[k % len(_CYCLE)])
+        k += 1
+    return out
+
+
+def pick_evenly(lam, n: int) -> np.ndarray:
+    """At most ``n`` of the values ``lam``, evenly spaced by index, the first and last among them."""
     lam = np.asarray(lam, float)
     if lam.size <= n:
         return lam
@@ -150,19 +172,13 @@ def _series(brdf, wavelengths=None, rgb: bool = False, channel=None) -> _Series:
         if wavelengths:
             lam = np.asarray(wavelengths, float)
         elif own is not None:
-            lam = _pick(own, MAX_WAVELENGTHS)
+            lam = pick_evenly(own, MAX_WAVELENGTHS)
         else:
             raise BrdftabError(f"{brdf.name} is spectral: give the wavelengths to plot (--wavelength-nm)")
         s = _Series([f"{x:g} nm" for x in lam], [_wavelength_colour(x) for x in lam], lam)
     else:
         names = list(brdf.channels)
-        colours, k = [], 0
-        for n in names:
-            if n in _CHANNEL_COLOURS:
-                colours.append(_CHANNEL_COLOURS[n])
-            else:
-                colours.append(_CYCLE[k % len(_CYCLE)])
-                k += 1
+        colours = _colours(names)
         s = _Series(names, colours, None)
     if channel is not None:
         if channel not in s.names:
@@ -309,9 +325,19 @@ def in_plane_directions(theta_i_deg, theta_o_deg, phi_i_deg=0.0):
     return wi, wo
 
 
-def _theta_list(theta_i_deg, default=THETA_I_DEG) -> list:
+def _own_theta_i(brdf, n: int):
+    """A gonio table's own incidence angles [deg] (at most ``n``, evenly picked), or None."""
+    for a in getattr(getattr(brdf, "grid", None), "axes", ()):
+        if a.name == "theta_i":
+            deg = np.round(np.degrees(np.asarray(a.values, float)), 9)
+            return list(pick_evenly(deg[deg < 90.0], n)) or None
+    return None
+
+
+def _theta_list(theta_i_deg, default=THETA_I_DEG, brdf=None, n: int = 4) -> list:
     if theta_i_deg is None:
-        theta_i_deg = default
+        own = _own_theta_i(brdf, n)
+        theta_i_deg = own if own is not None else default
     vals = [float(x) for x in np.atleast_1d(np.asarray(theta_i_deg, float))]
     for t in vals:
         if not (0.0 <= t < 90.0) or not math.isfinite(t):
@@ -351,7 +377,7 @@ def in_plane(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str = 
     """In-plane curves of ``quantity`` against θo [deg], one per incidence angle θi [deg] and
     channel. ``points`` — rows (θi, θo, value) — are marked (a paper's printed values)."""
     q = _quantity(quantity)
-    theta_i = _theta_list(theta_i_deg)
+    theta_i = _theta_list(theta_i_deg, brdf=brdf)
     series = _series(brdf, wavelengths, rgb, channel)
     theta_o, v = _curves(brdf, theta_i, phi_i_deg, quantity, series)
     fig = _new_figure()
@@ -386,10 +412,10 @@ def polar(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str = "br
     """The in-plane curves in polar axes: the angle is θo from the normal (specular side to the
     right), the radius the quantity."""
     q = _quantity(quantity)
-    theta_i = _theta_list(theta_i_deg)
+    theta_i = _theta_list(theta_i_deg, brdf=brdf)
     series = _series(brdf, wavelengths, rgb, channel)
     theta_o, v = _curves(brdf, theta_i, phi_i_deg, quantity, series)
-    fig = _new_figure((6.4, 4.8))
+    fig = _new_figure((7.6, 4.6))
     ax = fig.add_subplot(projection="polar")
     ax.set_theta_zero_location("N")
     ax.set_theta_direction(-1)
@@ -399,10 +425,9 @@ def polar(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str = "br
     if _log_wanted(log, v):
         ax.set_rscale("log")
         _log_limits(ax, v, axis="r")
-    ax.set_xlabel("θo [deg]  (right: specular side)")
-    ax.text(0.5, -0.02, f"radius: {q.axis_label}", transform=ax.transAxes, ha="center", va="top", fontsize=8)
-    ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(-0.05, -0.05))
-    ax.set_title(title or _title(brdf, label, _plane_note(brdf, phi_i_deg)), fontsize=9)
+    ax.set_xlabel(f"angle: θo [deg] (right: specular side); radius: {q.axis_label}", fontsize=8, labelpad=-40)
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.02, 0.5))
+    ax.set_title(title or _title(brdf, label, _plane_note(brdf, phi_i_deg), _chars(fig)), fontsize=9)
     return fig
 
 
@@ -517,10 +542,11 @@ def hemisphere(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str 
                wavelengths=None, rgb: bool = False, channel=None, n: int = 161, title=None, label=None) -> Figure:
     """The quantity over the exit hemisphere for one incidence (θi, φi) [deg], in the Lambert
     azimuthal equal-area projection (:func:`equal_area`), one panel per channel (at most 3),
-    an n × n image (NaN outside the disc). The incident direction is marked ``+``, its mirror
-    direction ``×``."""
+    an n × n image (NaN outside the disc) of the values at the pixel centres: a lobe narrower
+    than a pixel can fall between them (a larger ``n`` resolves it). The incident direction is
+    marked ``+``, its mirror direction ``×``."""
     q = _quantity(quantity)
-    theta_i = _theta_list(theta_i_deg, default=(30.0,))
+    theta_i = _theta_list(theta_i_deg, default=(30.0,), brdf=brdf, n=1)
     if len(theta_i) != 1:
         raise BrdftabError("a hemisphere map shows one incidence angle; give one theta_i")
     ti = math.radians(theta_i[0])
@@ -540,7 +566,8 @@ def hemisphere(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: str 
     axes = fig.subplots(1, len(keep), squeeze=False)[0]
     for ax, c in zip(axes, keep):
         img = ax.imshow(v[..., c], origin="lower", extent=(-1, 1, -1, 1), cmap="inferno",
-                        norm=_norm(v[..., c], use_log), interpolation="nearest", gid=f"hemisphere|channel={series.names[c]}")
+                        norm=_norm(v[..., c], use_log), interpolation="nearest",
+                        gid=f"hemisphere|channel={series.names[c]}")
         _disc_frame(ax)
         xi, yi = equal_area(ti, pi_)
         xm, ym = equal_area(ti, pi_ + np.pi)
@@ -589,87 +616,73 @@ def albedo(brdf, *, theta_i_deg=None, phi_i_deg=0.0, wavelengths=None, rgb: bool
     albedo, the title the smallest coverage when the BRDF lacks data somewhere."""
     from .integrate import albedo_curve
 
-    theta = _theta_list(np.arange(0.0, 90.0, 3.0) if theta_i_deg is None else theta_i_deg)
+    theta = _theta_list(theta_i_deg, np.arange(0.0, 90.0, 3.0), brdf, n=10 ** 6)
     phis = [float(p) for p in np.atleast_1d(np.asarray(phi_i_deg, float))]
     series = _series(brdf, wavelengths, rgb, channel)
-    curve = albedo_curve(brdf, np.radians(theta), np.radians(phis), None if series.rgb else series.lam)
+    curve = albedo_curve(brdf, np.radians(theta), np.radians(phis), series.lam)
     values = curve.values
     if series.rgb:  # the albedo is linear in f: the albedo spectra through the same conversion
-        curve = albedo_curve(brdf, np.radians(theta), np.radians(phis), series.lam)
         from .colorimetry import spectral_to_rgb
 
-        values = np.asarray(spectral_to_rgb(curve.values, series.lam), float)
-    white = [None] * values.shape[-1]
-    if values.shape[0] > 1:
-        from .integrate import white_sky_albedo
+        values = np.asarray(spectral_to_rgb(values, series.lam), float)
+    keep = _kept(series)
+    cov = float(np.nanmin(curve.coverage)) if curve.coverage.size else 1.0
+    note = f"coverage ≥ {100 * cov:.3g} % of the projected solid angle" if cov < 0.999 else ""
+    return albedo_values(theta, values[..., keep], [series.names[c] for c in keep], phi_i_deg=phis,
+                         colours=[series.colours[c] for c in keep], title=title or _title(brdf, label, note))
 
-        white = white_sky_albedo(curve.theta_i, values.mean(axis=1))
+
+def albedo_values(theta_i_deg, values, channels=None, *, phi_i_deg=None, limit=None, colours=None,
+                  title=None) -> Figure:
+    """A directional-albedo curve already computed (e.g. by the albedo check): ``values[T, C]``
+    (or ``[T, P, C]`` at each of ``phi_i_deg[P]``, one line style each; the first φi when
+    ``phi_i_deg`` is not given) at ``theta_i_deg[T]``, one line per channel named in ``channels``
+    (``"R"``, ``"550 nm"``, …; at most :data:`MAX_WAVELENGTHS` of more, evenly picked) in the
+    channels' colours, with the white-sky albedo of each (from the mean over φi) in the legend.
+    ``limit`` draws the energy check's bound, dashed (a value below 0.5 is its tolerance above 1).
+    Curves are ``gid`` ``"albedo|channel=R"`` (``"albedo|phi_i=30|channel=R"`` with several φi)."""
+    from .integrate import white_sky_albedo
+
+    theta = np.asarray(theta_i_deg, float).reshape(-1)
+    v = np.asarray(values, float)
+    if v.ndim == 3 and phi_i_deg is None:
+        v = v[:, :1, :]
+    elif v.ndim < 3:
+        v = v.reshape(v.shape[0] if v.ndim else 1, 1, -1)
+    if v.shape[0] != theta.size:
+        raise BrdftabError(f"{theta.size} incidence angles but {v.shape[0]} albedo values")
+    phis = [0.0] if phi_i_deg is None else [float(p) for p in np.atleast_1d(np.asarray(phi_i_deg, float))]
+    if len(phis) != v.shape[1]:
+        raise BrdftabError(f"{len(phis)} azimuths but albedo values for {v.shape[1]}")
+    names = [str(c) for c in channels] if channels is not None else (
+        ["mono"] if v.shape[-1] == 1 else [f"c{i}" for i in range(v.shape[-1])])
+    if len(names) != v.shape[-1]:
+        raise BrdftabError(f"{len(names)} channel names for {v.shape[-1]} albedo channels")
+    colours = list(colours) if colours is not None else _colours(names)
+    keep = list(pick_evenly(np.arange(len(names)), MAX_WAVELENGTHS).astype(int))
+    with np.errstate(invalid="ignore"):
+        white = white_sky_albedo(np.radians(theta), v.mean(axis=1)) if theta.size > 1 else [None] * len(names)
     fig = _new_figure()
     ax = fig.add_subplot()
     for j, p in enumerate(phis):
-        for c in _kept(series):
-            name = series.names[c] + (f", φi = {p:g}°" if len(phis) > 1 else "")
-            if white[c] is not None and j == 0:
-                name += f" (white-sky {white[c]:.4g})"
-            ax.plot(theta, values[:, j, c], color=series.colours[c], linestyle=_STYLES[j % len(_STYLES)],
-                    marker=".", label=name, gid=f"albedo|phi_i={p:g}|channel={series.names[c]}")
-    ax.set_xlabel("θi [deg]")
-    ax.set_ylabel("directional albedo a(θi) = ∫ f_r cos θo dωo [dimensionless]")
-    ax.set_xlim(0, 90)
-    ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7)
-    cov = float(np.nanmin(curve.coverage)) if curve.coverage.size else 1.0
-    note = f"coverage ≥ {100 * cov:.3g} % of the projected solid angle" if cov < 0.999 else ""
-    ax.set_title(title or _title(brdf, label, note), fontsize=9)
-    return fig
-
-
-def albedo_values(theta_i_deg, values, channels=None, *, limit=None, title: str = "") -> Figure:
-    """A directional-albedo curve already computed (e.g. by the albedo check): ``values[T, C]``
-    (or ``[T, P, C]``, the first φi drawn) at ``theta_i_deg[T]``, one line per channel named in
-    ``channels`` (``"R"``, ``"550 nm"``, …; at most :data:`MAX_WAVELENGTHS` of a spectrum,
-    evenly picked), in the channels' colours; ``limit`` draws the energy check's bound."""
-    theta = np.asarray(theta_i_deg, float).reshape(-1)
-    v = np.asarray(values, float)
-    if v.ndim == 3:
-        v = v[:, 0, :]
-    v = v.reshape(theta.size, -1)
-    names = [str(c) for c in channels] if channels is not None else [f"c{i}" for i in range(v.shape[1])]
-    if len(names) != v.shape[1]:
-        raise BrdftabError(f"{len(names)} channel names for {v.shape[1]} albedo channels")
-    keep = list(range(len(names)))
-    if len(keep) > MAX_WAVELENGTHS:
-        keep = sorted(set(np.round(np.linspace(0, len(names) - 1, MAX_WAVELENGTHS)).astype(int).tolist()))
-    fig = _new_figure()
-    ax = fig.add_subplot()
-    k = 0
-    for c in keep:
-        name = names[c]
-        if name in _CHANNEL_COLOURS:
-            colour = _CHANNEL_COLOURS[name]
-        elif name.endswith(" nm") and _is_number(name[:-3]):
-            colour = _wavelength_colour(float(name[:-3]))
-        else:
-            colour, k = _CYCLE[k % len(_CYCLE)], k + 1
-        ax.plot(theta, v[:, c], color=colour, marker=".", label=name, gid=f"albedo|channel={name}")
+        for c in keep:
+            name = names[c]
+            text = name + (f", φi = {p:g}°" if len(phis) > 1 else "")
+            if white[c] is not None and j == 0 and np.isfinite(white[c]):
+                text += f" (white-sky {white[c]:.4g})"
+            gid = f"albedo|phi_i={p:g}|channel={name}" if len(phis) > 1 else f"albedo|channel={name}"
+            ax.plot(theta, v[:, j, c], color=colours[c], linestyle=_STYLES[j % len(_STYLES)], marker=".",
+                    label=text, gid=gid)
     if limit is not None:
-        ax.axhline(1.0 + float(limit) if float(limit) < 0.5 else float(limit), color="tab:red", linestyle="--",
-                   linewidth=1, label="energy limit", gid="limit")
+        bound = 1.0 + float(limit) if float(limit) < 0.5 else float(limit)
+        ax.axhline(bound, color="tab:red", linestyle="--", lw=1.0, label=f"energy limit {bound:g}", gid="limit")
     ax.set_xlabel("θi [deg]")
     ax.set_ylabel("directional albedo a(θi) = ∫ f_r cos θo dωo [dimensionless]")
     ax.set_xlim(0, 90)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7)
-    ax.set_title(title, fontsize=9)
+    ax.set_title(title or "directional albedo", fontsize=9)
     return fig
-
-
-def _is_number(text: str) -> bool:
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 # --------------------------------------------------------------------------------------------
@@ -683,7 +696,7 @@ def compare(brdf, other, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: 
     brdf`` in the quantity's unit (or ``other / brdf`` with ``ratio``). Their channels must
     agree (a grey one broadcasts against the other's)."""
     q = _quantity(quantity)
-    theta_i = _theta_list(theta_i_deg)
+    theta_i = _theta_list(theta_i_deg, brdf=brdf)
     series = _series(brdf, wavelengths, rgb, channel)
     if series.lam is not None:  # both at the same wavelengths (through the same sRGB conversion)
         other_series = _Series(series.names, series.colours, series.lam, series.rgb, series.keep)

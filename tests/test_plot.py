@@ -273,12 +273,12 @@ def test_albedo_curve_is_the_hemispherical_integral(iso_table):
     fig = plot.albedo(iso_table, theta_i_deg=[0, 30, 60])
     drawn = plot.artists(fig)
     for c, name in enumerate("RGB"):
-        line = drawn[f"albedo|phi_i=0|channel={name}"]
+        line = drawn[f"albedo|channel={name}"]
         np.testing.assert_array_equal(line.get_xdata(), [0, 30, 60])
         for j, t in enumerate((0.0, 30.0, 60.0)):
             assert line.get_ydata()[j] == pytest.approx(_albedo_by_quadrature(iso_table, t)[c], abs=2e-3)
     lambert = models.create("lambert", albedo=0.7)
-    y = plot.artists(plot.albedo(lambert, theta_i_deg=[0, 45, 85]))["albedo|phi_i=0|channel=mono"].get_ydata()
+    y = plot.artists(plot.albedo(lambert, theta_i_deg=[0, 45, 85]))["albedo|channel=mono"].get_ydata()
     np.testing.assert_allclose(y, 0.7, rtol=1e-9)
     assert "dimensionless" in fig.axes[0].get_ylabel()
 
@@ -323,7 +323,6 @@ def test_the_command_line_s_static_lists_are_the_module_s():
 
     assert cli_plot.KINDS == plot.KINDS
     assert cli_plot.QUANTITIES == tuple(plot.QUANTITIES)
-    assert cli_plot.EXTENSIONS == tuple(plot.FORMATS)
 
 
 # --------------------------------------------------------------------------------------------
@@ -481,3 +480,96 @@ def test_readme_fig8_table_gives_the_plotted_curve():
         line = drawn[f"theta_i={psi}|channel=mono"]
         (j,) = np.flatnonzero(np.isclose(line.get_xdata(), float(at)))
         assert line.get_ydata()[j] == pytest.approx(float(value), abs=0.6 * 10.0 ** -(len(value.split(".")[1])))
+
+
+def test_a_spectral_spec_is_plotted_at_a_few_of_its_wavelengths(tmp_path, monkeypatch):
+    spec = tmp_path / "s.toml"
+    spec.write_text('[model]\nname = "microfacet"\nalpha = 0.3\nfresnel = "conductor"\n'
+                    'n = {wavelengths_nm = [400, 700], values = [0.5, 1.5]}\n'
+                    'k = {wavelengths_nm = [400, 700], values = [4.0, 7.0]}\n'
+                    '[grid]\ntype = "rusinkiewicz"\nn_theta_h = 4\nn_theta_d = 4\nn_phi_d = 8\n'
+                    'wavelengths_nm = [400, 450, 500, 550, 600, 650, 700]\n[[output]]\npath = "s.nc"\n')
+    figures = []
+    monkeypatch.setattr(plot, "save", lambda fig, path, **kw: figures.append(fig))
+    r = cli("plot", spec, "--theta-i-deg", "30", "-o", tmp_path / "p.png")
+    assert r.exit_code == 0, r.output
+    drawn = plot.artists(figures[0])
+    assert set(drawn) == {f"theta_i=30|channel={lam} nm" for lam in (400, 500, 550, 600, 700)}
+    model = brdftab.from_spec(spec)
+    line = drawn["theta_i=30|channel=550 nm"]
+    (j,) = np.flatnonzero(np.isclose(line.get_xdata(), 30.0))
+    assert line.get_ydata()[j] == pytest.approx(model.eval(*in_plane_pair(30, 30.0), [550.0])[0], rel=1e-12)
+    assert not (tmp_path / "s.nc").exists()          # plotted, not tabulated
+
+
+def test_spectral_table_as_srgb(spectral_table):
+    """``rgb=True``: the spectra at every wavelength of the table through
+    :func:`brdftab.colorimetry.spectral_to_rgb` (D65, CIE 1931 2°), drawn as R, G, B."""
+    from brdftab.colorimetry import spectral_to_rgb
+
+    lam = spectral_table.wavelengths
+    fig = plot.in_plane(spectral_table, theta_i_deg=[35], rgb=True)
+    drawn = plot.artists(fig)
+    assert set(drawn) == {f"theta_i=35|channel={c}" for c in "RGB"}
+    for theta_o in (-20.0, 35.0, 70.0):
+        spectrum = spectral_table.eval(*in_plane_pair(35, theta_o), lam)
+        rgb = spectral_to_rgb(spectrum, lam)
+        assert rgb.shape == (3,)
+        for c, name in enumerate("RGB"):
+            line = drawn[f"theta_i=35|channel={name}"]
+            (j,) = np.flatnonzero(np.isclose(line.get_xdata(), theta_o))
+            assert line.get_ydata()[j] == pytest.approx(rgb[c], rel=1e-12)
+            assert line.get_color() == {"R": "red", "G": "green", "B": "blue"}[name]
+    # the albedo in sRGB is the sRGB of the albedo spectrum (both are linear in f)
+    from brdftab.integrate import directional_albedo
+
+    y = plot.artists(plot.albedo(spectral_table, theta_i_deg=[0, 50], rgb=True))
+    spectrum = directional_albedo(spectral_table, np.radians([0.0, 50.0]), 0.0, lam)
+    expected = spectral_to_rgb(spectrum, lam)
+    for c, name in enumerate("RGB"):
+        np.testing.assert_allclose(y[f"albedo|channel={name}"].get_ydata(), expected[:, c], rtol=1e-9)
+    with pytest.raises(brdftab.BrdftabError, match="sRGB needs a spectrum"):
+        plot.in_plane(models.create("lambert", albedo=0.5), rgb=True)
+
+
+def test_albedo_values_draws_a_given_curve_with_its_limit():
+    theta = [0.0, 30.0, 60.0, 85.0]
+    values = np.array([[0.5, 0.4], [0.52, 0.41], [0.6, 0.45], [1.2, 0.5]])
+    fig = plot.albedo_values(theta, values, ["R", "550 nm"], limit=1.01, title="from a check")
+    drawn = plot.artists(fig)
+    np.testing.assert_array_equal(drawn["albedo|channel=R"].get_ydata(), values[:, 0])
+    np.testing.assert_array_equal(drawn["albedo|channel=550 nm"].get_xdata(), theta)
+    assert drawn["albedo|channel=R"].get_color() == "red"
+    assert np.allclose(drawn["limit"].get_ydata(), 1.01)
+    assert fig.axes[0].get_title() == "from a check"
+    with pytest.raises(brdftab.BrdftabError, match="4 incidence angles but 3"):
+        plot.albedo_values(theta, values[:3])
+    with pytest.raises(brdftab.BrdftabError, match="1 channel names for 2"):
+        plot.albedo_values(theta, values, ["R"])
+    # a tolerance is a bound above 1; several azimuths: one line style each; many channels: five
+    per_phi = np.stack([values, values + 0.1], axis=1)
+    drawn = plot.artists(plot.albedo_values(theta, per_phi, ["R", "G"], phi_i_deg=[0, 90], limit=0.01))
+    assert np.allclose(drawn["limit"].get_ydata(), 1.01)
+    np.testing.assert_array_equal(drawn["albedo|phi_i=90|channel=G"].get_ydata(), values[:, 1] + 0.1)
+    assert drawn["albedo|phi_i=90|channel=G"].get_linestyle() != drawn["albedo|phi_i=0|channel=G"].get_linestyle()
+    spectrum = np.linspace(0.1, 0.9, 4 * 31).reshape(4, 31)
+    names = [f"{lam} nm" for lam in range(400, 710, 10)]
+    drawn = plot.artists(plot.albedo_values(theta, spectrum, names))
+    assert sorted(drawn) == sorted(f"albedo|channel={lam} nm" for lam in (400, 480, 550, 620, 700))
+
+
+def test_a_gonio_table_is_drawn_at_its_own_incidence_angles(tmp_path):
+    from brdftab.grids import SphericalGrid
+
+    grid = SphericalGrid(np.radians([20.0, 40.0, 90.0]), np.radians([0.0]), np.radians(np.arange(0.0, 41.0, 5.0)),
+                         np.radians(np.arange(0.0, 360.0, 30.0)))
+    brdftab.save(tabulate(models.create("lambert", albedo=0.5), grid, progress=False), tmp_path / "g.nc")
+    table = brdftab.open(tmp_path / "g.nc")
+    with pytest.warns(brdftab.errors.BrdftabWarning, match="outside the domain"):   # θo beyond 40°: one warning
+        drawn = plot.artists(plot.in_plane(table))
+    assert set(drawn) == {"theta_i=20|channel=mono", "theta_i=40|channel=mono"}    # not 0, 30, 60; 90 is grazing
+    x, y = drawn["theta_i=20|channel=mono"].get_xdata(), drawn["theta_i=20|channel=mono"].get_ydata()
+    np.testing.assert_allclose(y[np.abs(x) <= 40.0], 0.5 / np.pi, rtol=1e-12)        # inside its θo domain
+    assert np.all(np.isnan(y[np.abs(x) > 40.0 + 1e-9]))                             # outside: a gap, not 0
+    line = plot.artists(plot.albedo(table))["albedo|channel=mono"]
+    np.testing.assert_array_equal(line.get_xdata(), [20.0, 40.0])
