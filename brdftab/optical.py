@@ -383,30 +383,42 @@ class MaterialKind(Kind):
 
 register_kind(MaterialKind())
 
-#: The ``material`` parameter of a component or model that takes an index n + ik.
-MATERIAL = Param("material", "material",
-                 "Optical constants n(λ), k(λ) instead of n and k: a bare name (" + ", ".join(BULK_SOURCES) + "; "
-                 "a documented bulk source each), a refractiveindex.info path 'shelf/book/page' (e.g. "
-                 "'main/Al/Rakic'), or a CSV file of wavelength [nm], n, k (in a spec, relative to the spec's "
-                 "folder). Interpolated to the table's wavelengths, or to R, G, B's wavelengths.", default=None)
+def material_param(suffix: str = "") -> Param:
+    """The ``material`` parameter (``material<suffix>``) of a component or model that takes an
+    index ``n<suffix>`` + i ``k<suffix>``."""
+    return Param(f"material{suffix}", "material",
+                 f"Optical constants n(λ), k(λ) instead of n{suffix} and k{suffix}: a bare name ("
+                 + ", ".join(BULK_SOURCES) + "; a documented bulk source each), a refractiveindex.info path "
+                 "'shelf/book/page' (e.g. 'main/Al/Rakic'), or a CSV file of wavelength [nm], n, k (in a spec, "
+                 "relative to the spec's folder). Interpolated to the table's wavelengths, or to R, G, B's "
+                 "wavelengths.", default=None)
+
+
+MATERIAL = material_param()
+
+
+def index_of(material, n, k, *, given=(), suffix: str = "", where: str = "", k_default: float | None = None):
+    """``(n, k)`` of a component or model: the material's (:class:`MaterialValue`) when
+    ``material`` is given — then n or k among the names ``given`` explicitly is an error — else
+    n (required) and k (``k_default`` when None and it has one). Keys carry ``suffix``."""
+    nk, kk, mk = f"n{suffix}", f"k{suffix}", f"material{suffix}"
+    if material is None:
+        if n is None:
+            raise ParameterError(nk, f"required{' when ' + where if where else ''}, unless {mk} is given")
+        if k is None:
+            if k_default is None:
+                raise ParameterError(kk, f"required{' when ' + where if where else ''}, unless {mk} is given")
+            k = ChannelValue(k_default)
+        return n, k
+    for key in (nk, kk):
+        if key in given:
+            raise ParameterError(mk, f"give either {mk} or {key}, not both: material {material.label!r} sets "
+                                 "n and k")
+    return MaterialValue(material, "n"), MaterialValue(material, "k")
 
 
 def resolve_index(values: dict, where: str, k_default: float | None = None) -> None:
-    """Replace ``n`` and ``k`` of a component's ``values`` by the material's when ``material``
-    is given (giving either too is an error); otherwise n is required, and k unless it has a
-    default ``k_default``."""
-    mat = values.get("material")
-    if mat is None:
-        if values.get("n") is None:
-            raise ParameterError("n", f"required when {where}, unless material is given")
-        if values.get("k") is None:
-            if k_default is None:
-                raise ParameterError("k", f"required when {where}, unless material is given")
-            values["k"] = ChannelValue(k_default)
-        return
-    for key in ("n", "k"):
-        if values.get(key) is not None and not isinstance(values[key], MaterialValue):
-            raise ParameterError("material", f"give either material or {key}, not both: material "
-                                 f"{mat.label!r} sets n and k")
-    values["n"] = MaterialValue(mat, "n")
-    values["k"] = MaterialValue(mat, "k")
+    """:func:`index_of` for a component's ``values`` (n, k None unless given), in place."""
+    given = {key for key in ("n", "k") if values.get(key) is not None}
+    values["n"], values["k"] = index_of(values.get("material"), values.get("n"), values.get("k"), given=given,
+                                        where=where, k_default=k_default)

@@ -228,3 +228,23 @@ def test_a_material_term_sums_with_a_spectral_term():
     lam = [450.0, 600.0]
     assert both.spectral
     assert np.allclose(both.eval(wi, wo, lam), al.eval(wi, wo, lam) + 0.1 / np.pi, rtol=1e-14)
+
+
+def test_small2021_peaks_take_a_material_for_their_index():
+    """The Rayleigh–Rice peaks of Small 2021 (n, k per channel) take material / material1 /
+    material2: the same as the database's n, k typed per channel; with n2 too, one error."""
+    au = optical.load("Au")
+    n, k = au.at(RGB_WAVELENGTHS_NM)
+    wi, wo = np.array([0.2, 0.0, 0.98]), np.array([-0.2, 0.01, 0.98])
+    by_name = models.create("small2021-peak", m=0.05, rho_s=1.0, material="Au")
+    typed = models.create("small2021-peak", m=0.05, rho_s=1.0, n=n.tolist(), k=k.tolist())
+    assert np.array_equal(by_name.eval(wi, wo), typed.eval(wi, wo))
+    lam = [450.0, 650.0]
+    n_l, k_l = au.at(lam)
+    one = [models.create("small2021-peak", m=0.05, rho_s=1.0, n=float(a), k=float(b)).eval(wi, wo)[0]
+           for a, b in zip(n_l, k_l)]
+    assert np.allclose(by_name.eval(wi, wo, lam), one, rtol=1e-14, atol=0)
+    cell = models.create("solar-cell-small2021", material2="Ag")
+    assert cell.parameters["material2"]["source"] == "main/Ag/Johnson" and "n2" not in cell.parameters
+    with pytest.raises(ParameterError, match="give either material2 or n2, not both"):
+        models.create("solar-cell-small2021", material2="Ag", n2=1.2)
