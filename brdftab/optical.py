@@ -29,12 +29,13 @@ extrapolation: a wavelength outside the source's samples is an error.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import html
 import math
 import os
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from urllib.parse import parse_qs
 
@@ -44,7 +45,8 @@ from .channels import RGB_WAVELENGTHS_NM, ChannelValue, Layout
 from .errors import ParameterError
 from .params import Kind, Param, register_kind, suggest
 
-__all__ = ["BULK_SOURCES", "OpticalConstants", "MaterialValue", "load", "read_csv"]
+__all__ = ["BULK_SOURCES", "MATERIAL", "MaterialValue", "OpticalConstants", "index_of", "load", "material_param",
+           "read_csv", "resolve_index"]
 
 #: The source a bare material name picks: a bulk (thick, opaque) sample whose tabulated n, k
 #: cover at least 188–1937 nm (so the whole visible), as refractiveindex.info pages.
@@ -64,7 +66,7 @@ BULK_SOURCES = {
 KEY = "material"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class OpticalConstants:
     """Tabulated n(λ), k(λ) of one source.
 
@@ -78,7 +80,7 @@ class OpticalConstants:
     k: np.ndarray
     reference: str = ""
     sha256: str | None = None
-    name: str = field(default="", compare=False)
+    name: str = ""
 
     @property
     def is_file(self) -> bool:
@@ -363,9 +365,11 @@ class MaterialKind(Kind):
                 raise ParameterError(p.name, f"expected {self.expected(p)}, or {{source, ...}} as provenance records")
             sha = value.get("sha256")
             try:
-                return load(value["source"], sha256=sha if isinstance(sha, str) else None)
+                oc = load(value["source"], sha256=sha if isinstance(sha, str) else None)
             except ParameterError as exc:
                 raise ParameterError(p.name, exc.detail) from None
+            name = value.get("name")
+            return dataclasses.replace(oc, name=name) if isinstance(name, str) else oc
         try:
             return load(value)
         except ParameterError as exc:

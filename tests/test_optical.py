@@ -135,6 +135,7 @@ def test_spectral_table_keeps_the_material_fresnel_ratio_and_its_provenance(tmp_
     from brdftab.checks._reference import model_from_provenance
 
     again = model_from_provenance("microfacet", params)
+    assert again.parameters == params
     wi, wo = np.array([[0.3, 0.0, 0.954]]), np.array([[-0.2, 0.1, 0.97]])
     assert np.array_equal(again.eval(wi, wo, lam), models.create("microfacet", alpha=0.3, fresnel="conductor",
                                                                  material="Al").eval(wi, wo, lam))
@@ -248,3 +249,16 @@ def test_small2021_peaks_take_a_material_for_their_index():
     assert cell.parameters["material2"]["source"] == "main/Ag/Johnson" and "n2" not in cell.parameters
     with pytest.raises(ParameterError, match="give either material2 or n2, not both"):
         models.create("solar-cell-small2021", material2="Ag", n2=1.2)
+
+
+def test_a_source_that_misses_rgb_is_spectral_only(tmp_path):
+    """n, k measured at 800-900 nm only: no R, G, B values to give, so the model is spectral and
+    a spec must list wavelengths (inside 800-900 nm)."""
+    spec = _csv_spec(tmp_path, "800 2.8 8.4\n900 2.1 8.6\n")
+    with pytest.raises(SpecError, match="the model is spectral: list the wavelengths"):
+        load_spec(spec)
+    spec.write_text(spec.read_text().replace("[[output]]", "wavelengths_nm = [850]\n[[output]]"))
+    m = load_spec(spec).model
+    assert m.spectral
+    f = m.fres.F(np.array([1.0]), np.array([850.0]), 1)
+    assert f[0, 0] == pytest.approx(_normal_reflectance(2.45, 8.5), rel=1e-14)
