@@ -20,7 +20,8 @@ import numpy as np
 
 from .errors import ParameterError
 
-__all__ = ["ChannelValue", "Layout", "default_channel_names", "combine_layouts", "luminance_weights", "RGB_LUMINANCE"]
+__all__ = ["ChannelValue", "Layout", "default_channel_names", "combine_layouts", "luminance_weights", "RGB_LUMINANCE",
+           "RGB_WAVELENGTHS_NM"]
 
 
 def default_channel_names(n: int) -> tuple[str, ...]:
@@ -42,6 +43,11 @@ class Layout:
 
     channels: tuple[str, ...] | None = ("mono",)
     wavelengths: np.ndarray | None = None
+    #: ``(lo, hi, what)`` when the BRDF's values come from a spectrum it can sample at any
+    #: wavelength in [lo, hi] nm (a material's optical constants, :mod:`brdftab.optical`), so
+    #: it accepts wavelengths though it has named channels (R, G, B sampled at
+    #: :data:`RGB_WAVELENGTHS_NM`); ``what`` names the data in the out-of-range error.
+    sampled: tuple | None = None
 
     def __post_init__(self):
         if self.channels is None:
@@ -72,11 +78,17 @@ class Layout:
         lam = np.atleast_1d(np.asarray(wavelengths, float))
         if lam.ndim != 1 or not np.all(np.isfinite(lam)) or np.any(lam <= 0):
             raise ParameterError("wavelengths", "expected a 1-D list of positive wavelengths in nm")
-        if not self.spectral and not self.grey:
+        if not self.spectral and not self.grey and self.sampled is None:
             raise ParameterError(
                 "wavelengths",
                 f"this BRDF has channels {list(self.channels)}, not a spectrum; evaluate it without wavelengths",
             )
+        if self.sampled is not None:
+            lo, hi, what = self.sampled
+            out = lam[(lam < lo) | (lam > hi)]
+            if out.size:
+                raise ParameterError("wavelengths", f"{out[0]:g} nm is outside {lo:g}-{hi:g} nm, the range of "
+                                     f"{what} (no extrapolation)")
         return lam
 
     def n_out(self, lam) -> int:
@@ -99,7 +111,7 @@ def combine_layouts(layouts, names=None) -> Layout:
                 continue
             if first is None:
                 first = (name, l)
-            elif l.spectral != first[1].spectral or (not l.spectral and l.channels != first[1].channels):
+            elif not _compatible(first[1], l):
                 second = (name, l)
                 break
         if second is not None:
@@ -108,6 +120,15 @@ def combine_layouts(layouts, names=None) -> Layout:
                     f"has {len(l.channels)} channel values ({', '.join(l.channels)})"
             raise ParameterError(second[0], f"{what(second[1])}, but {first[0]} {what(first[1])}: give both the same "
                                  "channels, both spectra, or one a single number")
+    spans = [l.sampled for l in layouts if l.sampled is not None]
+    sampled = None
+    if spans:
+        lo, hi = max(s[0] for s in spans), min(s[1] for s in spans)
+        if lo > hi:
+            raise ParameterError("wavelengths", "the terms' optical constants share no common wavelength range")
+        sampled = (lo, hi, " and ".join(dict.fromkeys(s[2] for s in spans)))
+    if spectral and named and all(l.sampled is not None for l in named):
+        named = []  # channels that sample a spectrum: evaluated at the spectral terms' wavelengths
     if spectral and named:
         raise ParameterError(
             "terms", f"cannot combine a spectral term with a term of channels {list(named[0].channels)}"
@@ -115,21 +136,31 @@ def combine_layouts(layouts, names=None) -> Layout:
     if spectral:
         wl = [l.wavelengths for l in spectral if l.wavelengths is not None]
         if not wl:
-            return Layout(None, None)
+            return Layout(None, None, sampled)
         # every term is defined only over its own range: keep the common range
         lo = max(w[0] for w in wl)
         hi = min(w[-1] for w in wl)
         if lo > hi:
             raise ParameterError("wavelengths", "the spectral parameters share no common wavelength range")
         union = np.unique(np.concatenate(wl))
-        return Layout(None, union[(union >= lo) & (union <= hi)])
+        return Layout(None, union[(union >= lo) & (union <= hi)], sampled)
     if named:
         first = named[0].channels
         for l in named[1:]:
             if l.channels != first:
                 raise ParameterError("terms", f"terms have different channels: {list(first)} and {list(l.channels)}")
-        return Layout(first)
+        return Layout(first, sampled=sampled if all(l.sampled is not None for l in named) else None)
     return Layout()
+
+
+def _compatible(a: Layout, b: Layout) -> bool:
+    """Whether two non-grey layouts combine: both spectra, the same channels, or a spectrum and
+    channels that sample a spectrum (:attr:`Layout.sampled`)."""
+    if a.spectral and b.spectral:
+        return True
+    if not a.spectral and not b.spectral:
+        return a.channels == b.channels
+    return (b if a.spectral else a).sampled is not None
 
 
 class ChannelValue:
@@ -240,6 +271,12 @@ def _numbers(seq):
         raise ValueError("expected a list of numbers")
     return [_real(x) for x in seq]
 
+
+#: The wavelengths [nm] the R, G, B channels stand for where a spectrum is sampled per channel
+#: (a material's optical constants, :mod:`brdftab.optical`): the dominant wavelengths of the
+#: Rec. 709 / sRGB primaries (brdftab's RGB) with respect to the D65 white point, CIE 1931 2°
+#: observer (CIE 15:2004 §9.1), as ``colour.dominant_wavelength`` gives them (tested).
+RGB_WAVELENGTHS_NM = np.array([611.0, 549.0, 464.0])
 
 #: Rec. 709 relative luminance weights of linear R, G, B.
 RGB_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])

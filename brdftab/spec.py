@@ -27,9 +27,9 @@ Layout::
 Combinators nest: ``name = "sum"`` with ``[[model.terms]]`` tables; ``name = "scale"`` with
 ``factor`` and a ``[model.term]`` table.
 
-A parameter that names a file (``coefficients = "ptfe.coeff.csv"`` of ``zernike-expansion``) is
-read relative to the spec's folder; the model lists it in ``input_files``, so no output may
-overwrite it.
+A parameter that names a file (``coefficients = "ptfe.coeff.csv"`` of ``zernike-expansion``,
+``material = "nk.csv"`` of a conductor Fresnel term) is read relative to the spec's folder; it
+is among the spec's inputs, so no output may overwrite it.
 
 Everything is checked strictly: an unknown key, unknown model, missing, mistyped or
 out-of-range value raises :class:`~brdftab.errors.SpecError` with one line naming the file,
@@ -127,6 +127,9 @@ def model_inputs(model) -> list:
             continue
         seen.add(id(m))
         found += [Path(p) for p in getattr(m, "input_files", ()) or ()]
+        for v in getattr(m, "_values", {}).values():  # a material's n, k file (brdftab.optical)
+            if getattr(v, "is_file", False):
+                found.append(Path(v.source))
         for p in getattr(m, "params", ()):  # nested models are parameters of kind brdf / brdfs
             if getattr(p, "kind", None) not in ("brdf", "brdfs"):
                 continue
@@ -295,9 +298,13 @@ def _wavelengths(grid_cfg, model, path):
         lam = grid_wavelengths(grid_cfg)
     except ParameterError as exc:
         raise _fail(path, "grid.wavelengths_nm", exc.detail) from None
-    if not model.spectral and not model.layout.grey:
+    if not model.spectral and not model.layout.grey and model.layout.sampled is None:
         raise _fail(path, "grid.wavelengths_nm", f"the model has channels {list(model.channels)}, not a "
                     "spectrum; remove wavelengths_nm or give its parameters as spectra")
+    try:
+        model.layout.resolve(lam)  # within the range of a material's optical constants
+    except ParameterError as exc:
+        raise _fail(path, "grid.wavelengths_nm", exc.detail) from None
     if model.spectral and model.wavelengths is not None:
         lo, hi = model.wavelengths[0], model.wavelengths[-1]
         if lam[0] < lo or lam[-1] > hi:

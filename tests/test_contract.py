@@ -51,6 +51,10 @@ def _draw_value(p: Param, rng, depth):
         return [_leaf(rng) for _ in range(int(rng.integers(1, 3)))]
     if p.kind == "zernike-coefficients":  # a synthetic file or Germer's PTFE fit
         return str(_COEFFICIENT_FILES[int(rng.integers(len(_COEFFICIENT_FILES)))])
+    if p.kind == "material":  # a bare name: a bulk source of the refractiveindex.info database
+        from brdftab.optical import BULK_SOURCES
+
+        return str(rng.choice(sorted(BULK_SOURCES)))
     raise AssertionError(f"the contract test cannot draw parameter kind {p.kind!r}: teach it")
 
 

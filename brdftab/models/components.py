@@ -29,7 +29,7 @@ physics, which the models that compose it fuse into one compiled loop
 * a shadowing term: ``jit_G(wix, wiy, wiz, wox, woy, woz, hx, hy, hz, lam_i, lam_o)``, where
   ``lam_i``, ``lam_o`` are the distribution's Λ when ``jit_needs_lambda`` is True (else 0);
 * a Fresnel term: ``jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c)`` for channel ``c`` of
-  ``p = jit_params(lam, n)`` (by default one column per declared parameter, per channel).
+  ``p = jit_params(lam, n)`` (by default one column per declared channel parameter, per channel).
 
 Each also declares what it ``depends`` on — D the half vector, F θd unless it says
 ``"pair"`` — so a tabulation on a Rusinkiewicz grid evaluates D once per half-vector node and F
@@ -43,8 +43,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..channels import Layout, combine_layouts
+from ..channels import ChannelValue, Layout, combine_layouts
 from ..errors import ParameterError
+from ..optical import MATERIAL, resolve_index
 from ..params import Param, parse_params, suggest
 from ..registry import Registry
 from .distributions import (beckmann_D_scalar, beckmann_lambda_scalar, d_beckmann, d_ggx, ggx_D_scalar,
@@ -314,7 +315,7 @@ class Fresnel(Component):
 
     @property
     def layout(self) -> Layout:
-        vals = {k: v for k, v in self.values.items() if hasattr(v, "layout")}
+        vals = {k: v for k, v in self.values.items() if isinstance(v, ChannelValue)}
         return combine_layouts([v.layout for v in vals.values()], names=vals) if vals else Layout()
 
     #: Scalar form for the compiled kernels (see the module docstring); None: not compiled.
@@ -322,7 +323,8 @@ class Fresnel(Component):
 
     def jit_params(self, lam, n) -> np.ndarray:
         """``p[n, k]`` of :attr:`jit_F`: each declared parameter's value per channel, in order."""
-        cols = [np.broadcast_to(np.asarray(self.values[p.name].at(lam, n), float), (n,)) for p in self.params]
+        cols = [np.broadcast_to(np.asarray(self.values[p.name].at(lam, n), float), (n,)) for p in self.params
+                if p.kind == "channel"]
         return np.stack(cols, axis=1) if cols else np.zeros((n, 0))
 
     def F(self, cos_d, lam, n):
@@ -386,10 +388,15 @@ class Conductor(Fresnel):
     summary = "Unpolarized Fresnel reflectance of an absorbing medium with index n + ik."
     reference = "BornWolf1999"
     params = (
-        Param("n", "channel", "Real part of the relative refractive index.", minimum=INDEX_MIN, maximum=INDEX_MAX),
-        Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik).", minimum=0.0,
-              maximum=INDEX_MAX),
+        Param("n", "channel", "Real part of the relative refractive index (or give material).", default=None,
+              minimum=INDEX_MIN, maximum=INDEX_MAX),
+        Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik; or give material).",
+              default=None, minimum=0.0, maximum=INDEX_MAX),
+        MATERIAL,
     )
+
+    def _setup(self, **values):
+        resolve_index(self.values, f"{self.kind} = '{self.name}'")
 
     def F(self, cos_d, lam, n):
         return fresnel_conductor(cos_d[:, None], self.values["n"].at(lam, n), self.values["k"].at(lam, n))
@@ -407,10 +414,15 @@ class RayleighRice(Fresnel):
     reference = "Stover2012; Butler2015"
     depends = "pair"
     params = (
-        Param("n", "channel", "Real part of the relative refractive index.", minimum=INDEX_MIN, maximum=INDEX_MAX),
-        Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik).", default=0.0,
-              minimum=0.0, maximum=INDEX_MAX),
+        Param("n", "channel", "Real part of the relative refractive index (or give material).", default=None,
+              minimum=INDEX_MIN, maximum=INDEX_MAX),
+        Param("k", "channel", "Extinction coefficient (imaginary part of the index, n + ik): 0 unless given (or "
+              "give material).", default=None, minimum=0.0, maximum=INDEX_MAX),
+        MATERIAL,
     )
+
+    def _setup(self, **values):
+        resolve_index(self.values, f"{self.kind} = '{self.name}'", k_default=0.0)
 
     def F(self, cos_d, lam, n):
         # what Q equals at the mirror direction, where cos_d = cosθi

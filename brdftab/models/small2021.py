@@ -52,6 +52,7 @@ import numpy as np
 from .._jit import device, kernel
 from ..brdf import Model
 from ..errors import ParameterError
+from ..optical import index_of, material_param
 from ..params import REQUIRED, Param
 from ..quadrature import gauss_legendre
 from . import components as C
@@ -65,26 +66,44 @@ from ._registry import register
 __all__ = ["Small2021Peak", "Small2021Diffraction", "SolarCellSmall2021"]
 
 
-def _peak_params(suffix="", m=REQUIRED, rho=REQUIRED, n=REQUIRED):
+def _peak_params(suffix="", m=REQUIRED, rho=REQUIRED, n=None):
     return (
         Param(f"m{suffix}", "float", "Beckmann width m of the peak (rms slope).", default=m, minimum=1e-6,
               maximum=1.0),
         Param(f"rho_s{suffix}", "channel", "Weight ρs of the peak.", default=rho, minimum=0.0, maximum=1e6),
-        Param(f"n{suffix}", "channel", "Real part of the index n + ik inside Q.", default=n, minimum=INDEX_MIN,
-              maximum=INDEX_MAX),
-        Param(f"k{suffix}", "channel", "Imaginary part k (>= 0) of the index inside Q.", default=0.0, minimum=0.0,
-              maximum=INDEX_MAX),
+        Param(f"n{suffix}", "channel", f"Real part of the index n + ik inside Q (or give material{suffix}).",
+              default=n, minimum=INDEX_MIN, maximum=INDEX_MAX),
+        Param(f"k{suffix}", "channel", f"Imaginary part k (>= 0) of the index inside Q (or give material{suffix}).",
+              default=0.0, minimum=0.0, maximum=INDEX_MAX),
+        material_param(suffix),
     )
 
 
+class _GivenParams:
+    """Records which parameters a model was given explicitly (a material replaces n and k that
+    were not; giving both is an error)."""
+
+    def __init__(self, **params):
+        self._given = frozenset(params)
+        super().__init__(**params)
+
+    def _index(self, suffix, n, k, material):
+        """n, k from the values or the material; provenance then records the material only."""
+        n, k = index_of(material, n, k, given=self._given, suffix=suffix, where=f"model '{self.name}'")
+        if material is not None:
+            self._values[f"n{suffix}"] = self._values[f"k{suffix}"] = None
+        return n, k
+
+
 @register
-class Small2021Peak(Model):
+class Small2021Peak(_GivenParams, Model):
     name = "small2021-peak"
     summary = "Small et al. 2021 Eq. 6: ρs Q/(2(cosθi + cosθs)²) · Beckmann D(m), Q the plain Rayleigh–Rice sum."
     reference = "Small2021; Stover2012"
     params = _peak_params()
 
-    def _setup(self, m, rho_s, n, k):
+    def _setup(self, m, rho_s, n, k, material):
+        n, k = self._index("", n, k, material)
         self.m = m
         self.rho_s, self.n, self.k = rho_s, n, k
         self.dist = C.create("distribution", "beckmann", alpha=m)
@@ -260,15 +279,17 @@ def _solar_params():
 
 
 @register
-class SolarCellSmall2021(Model):
+class SolarCellSmall2021(_GivenParams, Model):
     name = "solar-cell-small2021"
     summary = ("Small et al. 2021 solar cell: center peak (Eq. 6) + offset peak in a tilted frame (Eqs. 7–8) + "
                "two-stripe diffraction (Eqs. 9–10) + optional ρd/π; defaults are the paper's §4.4.1 values.")
     reference = "Small2021"
     params = _solar_params()
 
-    def _setup(self, m1, rho_s1, n1, k1, m2, rho_s2, n2, k2, tilt, tilt_azimuth, a, b, c, R, wavelength_nm,
-               phi_ref, rho_s3, rho_d):
+    def _setup(self, m1, rho_s1, n1, k1, material1, m2, rho_s2, n2, k2, material2, tilt, tilt_azimuth, a, b, c, R,
+               wavelength_nm, phi_ref, rho_s3, rho_d):
+        n1, k1 = self._index("1", n1, k1, material1)
+        n2, k2 = self._index("2", n2, k2, material2)
         self.center = Small2021Peak(m=m1, rho_s=rho_s1, n=n1, k=k1)
         self.offset = Rotated(term=Small2021Peak(m=m2, rho_s=rho_s2, n=n2, k=k2), tilt=tilt,
                               tilt_azimuth=tilt_azimuth, phi_ref=phi_ref)
