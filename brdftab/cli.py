@@ -375,8 +375,14 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
     click.echo(f"wrote {result.target} ({result.format}, {grid_text_out}{what})")
     for why in result.folded:
         click.echo(f"folded: averaged because {why}")
+    colour = getattr(written, "ds", None) is not None and "colour_illuminant" in written.ds.attrs \
+        and getattr(result.input_table, "spectral", False)
+    if colour:
+        a = written.ds.attrs
+        click.echo(f"colour: the spectra converted to {a['colour_space']} under {a['colour_illuminant']}, "
+                   f"{a['colour_observer']} ({a['colour_conversion']})")
     if not result.resampled:
-        click.echo("copied: same grid as the input, values unchanged")
+        click.echo("copied: same grid as the input" + (", in colour" if colour else ", values unchanged"))
         return
     click.echo(f"resampled: {result.source_grid or 'the input'} -> {grid_text_out}")
     d = result.difference

@@ -38,7 +38,7 @@ from .params import Param
 
 __all__ = ["Colorimetry", "DEFAULT", "OBSERVERS", "COLOURSPACES", "spectral_to_xyz", "spectral_to_rgb",
            "luminance_weights", "sd_method", "spectral_distribution", "ColourView", "colour_view", "table_to_colour", "to_colour", "PARAMS", "from_options", "seen_as_written",
-           "convert_for_writer"]
+           "convert_for_writer", "from_recorded"]
 
 #: Observers by their short names (the long names of colour-science are accepted too).
 OBSERVERS = {
@@ -283,7 +283,7 @@ class ColourView(BRDF):
     fixed linear combination of wavelengths keeps every symmetry of the spectral BRDF."""
 
     def __init__(self, base: BRDF, wavelengths, colorimetry: Colorimetry | None = None):
-        if not base.spectral:
+        if not base.spectral and getattr(base.layout, "sampled", None) is None:
             raise ParameterError("colourspace", f"'{base.name}' is not spectral: nothing to convert")
         self.base = base
         self.colorimetry = colorimetry or DEFAULT
@@ -362,6 +362,18 @@ def table_to_colour(table, colorimetry: Colorimetry | None = None):
     new = Table(out)
     new.origin = getattr(table, "origin", new.origin)
     return new
+
+
+_OBSERVER_NAMES = {v: k for k, v in OBSERVERS.items()}
+
+
+def from_recorded(model, attrs) -> "ColourView":
+    """``model`` seen as a table converted by :func:`table_to_colour` records it (its
+    ``colour_*`` attributes: illuminant, observer, colourspace and the wavelengths)."""
+    space = str(attrs.get("colour_space", "sRGB (linear)")).removesuffix(" (linear)")
+    c = Colorimetry(str(attrs["colour_illuminant"]), str(attrs.get("colour_observer", DEFAULT.observer)), space)
+    lam = [float(x) for x in str(attrs["colour_wavelengths_nm"]).split(",")]
+    return ColourView(model, lam, c)
 
 
 def to_colour(brdf, colorimetry: Colorimetry | None = None, wavelengths=None):

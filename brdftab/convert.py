@@ -145,6 +145,7 @@ class Conversion:
     report: object = None
     written: object = None
     input_report: object = None
+    input_table: object = None
 
     def to_json(self) -> dict:
         return {"source": str(self.source), "target": str(self.target), "format": self.format,
@@ -478,7 +479,7 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
         src_text = getattr(getattr(table, "grid", None), "describe", lambda: "")()
         result = Conversion(source, target, fmt.name, src_text,
                             out_grid.describe() if out_grid is not None else "", resampled, folded,
-                            report=report_out, written=written, input_report=report_in)
+                            report=report_out, written=written, input_report=report_in, input_table=table)
         if resampled or folded:
             back = _read_back(fmt, target, written)
             if back is None:
@@ -528,7 +529,7 @@ def _stream_copy(table, fmt, source, target, options, overwrite, inputs, checks,
             written.close()
     src_text = table.grid.describe()
     return Conversion(source, target, fmt.name, src_text, src_text, False, [], report=report_out, written=written,
-                      input_report=report_in)
+                      input_report=report_in, input_table=table)
 
 
 def _stamp_input(table, report, source) -> None:

@@ -88,12 +88,12 @@ def test_bad_conversions_are_one_line():
 
 
 def _al_table():
-    model = create("microfacet", alpha=0.3, fresnel="conductor", **AL)
+    model = create("microfacet", alpha=0.3, fresnel="conductor", material="Al")  # Rakić, refractiveindex.info
     return model, tabulate(model, RusinkiewiczGrid(6, 6, 8), LAM31, progress=False)
 
 
 def test_a_spectral_conductor_in_exr_is_colour_sciences_srgb(tmp_path):
-    """A spectral aluminium table at 31 wavelengths written to EXR (the default colour = rgb):
+    """A spectral aluminium table (n, k from the database) at 31 wavelengths written to EXR (the default colour = rgb):
     every pixel is colour-science's sRGB of that sample's spectrum to 1e-6 (float32 pixels), and
     the header records illuminant, observer and colourspace; colour = spectral keeps the spectra."""
     _, table = _al_table()
@@ -106,6 +106,13 @@ def test_a_spectral_conductor_in_exr_is_colour_sciences_srgb(tmp_path):
         hdr = dict(f.parts[0].header)
     assert hdr["colour_illuminant"] == "D65" and hdr["colour_observer"] == "CIE 1931 2 Degree Standard Observer"
     assert hdr["colour_space"] == "sRGB (linear)" and "colour-science" in hdr["colour_conversion"]
+    # the checks rebuild the model from the provenance and see it in the recorded colour: the
+    # samples match it at the nodes (float32), as a later `brdftab validate` finds
+    from brdftab.checks import run_checks
+
+    report = run_checks(back, only=("conventions", "tabulation"))
+    assert report.get("conventions").status == "pass" and report.get("conventions").data["node_error"] < 1e-6
+    assert report.get("tabulation").status in ("pass", "warn")
     brdftab.save(table, tmp_path / "al-a.exr", illuminant="A")
     ref_a = colour_science(np.asarray(table.values), LAM31, illuminant="A").reshape(back.values.shape)
     np.testing.assert_allclose(brdftab.open(tmp_path / "al-a.exr").values, ref_a, rtol=1e-6, atol=1e-9)

@@ -42,7 +42,13 @@ def reference(ctx):
             return None, "the table names no model in its provenance"
         try:
             params = json.loads(ds.attrs.get("parameters", "{}"))
-            return model_from_provenance(name, params), None
+            model = model_from_provenance(name, params)
+            if "colour_illuminant" in ds.attrs and "colour_wavelengths_nm" in ds.attrs:
+                # spectra converted to colour (brdftab.colorimetry): the model seen the same way
+                from ..colorimetry import from_recorded
+
+                model = from_recorded(model, ds.attrs)
+            return model, None
         except (BrdftabError, KeyError, TypeError, ValueError, AttributeError) as exc:
             return None, f"the model in the table's provenance ({name!r}) is not available: {exc}"
     return ctx.memo("reference", compute)
