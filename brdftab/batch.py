@@ -9,6 +9,10 @@ and sends back small plain results: the paths written, the check reports, an err
 with its exit code. Tables never travel. Each unit reads its spec and writes its files itself,
 exactly as a serial run does, so the files are the same (their ``created`` time aside).
 
+One spec on a cluster runs in this process instead, and the blocks of a table it streams (one
+over the memory budget) are tabulated on the workers (the model sent once, each block's nodes
+sent, its values back) and written here as they arrive: the same files again.
+
 A failed unit reports its one-line error and the others go on; the exit code is the most
 serious of all: 2 when a unit had bad input (or failed for another reason than a check), else
 1 when a check refused an export, else 0.
@@ -144,15 +148,16 @@ def _relative(res: dict, root) -> dict:
 
 
 def tabulate_unit(path: str, member, sha256, out_dir, overwrite: bool, allow_invalid, checks: dict,
-                  progress=False, root=None) -> dict:
+                  progress=False, root=None, engine=None) -> dict:
     """Tabulate one spec (``member``: the index of a sweep member, or None) and write its
     outputs with :func:`brdftab.pipeline.run`; returns a plain dict: ``lines`` / ``errors`` to
     print, ``outputs`` (per output: path and the figures of its report), ``error`` and ``code``
     (paths under ``root`` shown relative to it)."""
-    return _relative(_tabulate_unit(path, member, sha256, out_dir, overwrite, allow_invalid, checks, progress), root)
+    return _relative(_tabulate_unit(path, member, sha256, out_dir, overwrite, allow_invalid, checks, progress,
+                                    engine), root)
 
 
-def _tabulate_unit(path, member, sha256, out_dir, overwrite, allow_invalid, checks, progress) -> dict:
+def _tabulate_unit(path, member, sha256, out_dir, overwrite, allow_invalid, checks, progress, engine=None) -> dict:
     from .pipeline import run
     from .spec import load_spec
     from .sweep import member_spec
@@ -163,7 +168,7 @@ def _tabulate_unit(path, member, sha256, out_dir, overwrite, allow_invalid, chec
     def work():
         spec = load_spec(path) if member is None else member_spec(path, member, sha256)
         return run(spec, out_dir=out_dir, overwrite=overwrite, allow_invalid=allow_invalid, progress=progress,
-                   checks=checks)
+                   checks=checks, engine=engine)
 
     with _recorded(caught):
         result, err = _caught(work)
@@ -449,8 +454,11 @@ def _finished_since(started: float, plans, out_dir) -> None:
 
 
 def _run_units(engine, units, calls, plans, bar_on, far, out_dir, overwrite, echo, echo_err, codes) -> None:
-    with engine, unit_bar(len(calls), "tabulating", "run", bar_on) as bar:
-        for i, res in ordered(counted(engine.map(tabulate_unit, calls), bar, _written if far else None)):
+    one = far and len(units) == 1 and units[0][1] is None
+    with engine, unit_bar(len(calls), "tabulating", "run", bar_on and not one) as bar:
+        # one spec on a cluster: run here, its streamed table's blocks tabulated on the workers
+        results = [(0, tabulate_unit(*calls[0], engine=engine))] if one else engine.map(tabulate_unit, calls)
+        for i, res in ordered(counted(results, bar, _written if far and not one else None)):
             plan, m = units[i]
             plan.results[None if m is None else m.index] = res
             show_warnings(res.get("warnings", ()))

@@ -91,8 +91,12 @@ def _groups(planned):
 
 
 def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool | None = None,
-        progress: bool | None = None, checks: dict | None = None) -> Result:
+        progress: bool | None = None, checks: dict | None = None, engine=None) -> Result:
     """Tabulate ``spec`` and write its outputs.
+
+    ``engine`` (a :class:`brdftab.batch.Engine` on a dask cluster): the blocks of a table
+    streamed to its files (over the memory budget) are tabulated on the cluster's workers and
+    written here; the files are those of a serial run.
 
     Output paths resolve against ``out_dir`` when given (else the spec's folder; missing
     folders are created). Every target is checked and claimed before any work starts: an
@@ -126,7 +130,7 @@ def run(spec: Spec, out_dir=None, overwrite: bool = False, allow_invalid: bool |
             # written block by block to its temporary and checked there, as stored; renamed
             # into place when this block ends, after every other output passed its checks too
             tmps = [streamed.enter_context(atomic_path(m.target, overwrite=overwrite)) for m in job.members]
-            job.write(spec, tmps, progress, _progress_delay(started))
+            job.write(spec, tmps, progress, _progress_delay(started), engine)
             for m, tmp in zip(job.members, tmps):
                 with check_progress(m.target.name, progress, _progress_delay(started)):
                     table, report = job.check(spec, m, tmp, layers, allow)
@@ -230,6 +234,16 @@ def _jobs(spec, planned, provenance, progress) -> list:
     return jobs
 
 
+def block_values(model, grid, lam, n: int) -> np.ndarray:
+    """f of ``model`` at the nodes of ``grid`` (a block of a table's grid), ``[*grid.shape, n]``:
+    what a cluster worker computes for a streamed table (:meth:`_Streamed._write_on`)."""
+    from .table import fill_values
+
+    values = np.empty(grid.shape + (n,))
+    fill_values(model, grid, lam, values)
+    return values
+
+
 class _Streamed:
     """The outputs of one grid tabulated block by block into their files (formats with a
     ``stream`` writer), so that no more than a block of the table is in memory: each block is
@@ -243,8 +257,7 @@ class _Streamed:
         self.provenance = provenance
         self.writers = []
 
-    def write(self, spec, tmps, progress, delay) -> None:
-        from ._signals import checkpoint
+    def write(self, spec, tmps, progress, delay, engine=None) -> None:
         from .channels import Layout
         from .table import _checked_dtype, _progress, _specular_samples, blocks, fill_values, make_table
 
@@ -268,18 +281,61 @@ class _Streamed:
             bar = _progress(grid.size, progress)
             if bar is not None:
                 bar.delay = delay
+            keys = blocks(grid.shape, items, align=self.writers[0].chunks[:-1])
             try:
-                for key in blocks(grid.shape, items, align=self.writers[0].chunks[:-1]):
+                if engine is not None and engine.distributed:
+                    self._write_on(engine, model, grid, lam, n, keys, bar, names)
+                    return
+                for key in keys:
                     sub = grid.block(key)
                     values = np.empty(sub.shape + (n,))
                     fill_values(model, sub, lam, values, bar=bar)  # (interrupted as any tabulation)
-                    with held_signals(writing=names):
-                        for w in self.writers:
-                            w.write(key + (slice(None),), values)
-                        checkpoint()  # Ctrl-C / SIGTERM received during the write act here
+                    self._write_block(key, values, names)
             finally:
                 if bar is not None:
                     bar.close()
+
+    def _write_block(self, key, values, names) -> None:
+        from ._signals import checkpoint
+
+        with held_signals(writing=names):
+            for w in self.writers:
+                w.write(key + (slice(None),), values)
+            checkpoint()  # Ctrl-C / SIGTERM received during the write act here
+
+    def _write_on(self, engine, model, grid, lam, n, keys, bar, names) -> None:
+        """The blocks tabulated on ``engine``'s cluster (:func:`block_values`: the same code,
+        hence the same bits, as in this process), a bounded number at a time, and written here
+        as they arrive (the writers take blocks in any order)."""
+        import itertools
+
+        from distributed import as_completed
+
+        client = engine.client
+        remote_model = client.scatter(model, broadcast=True)
+        workers = max(1, len(client.scheduler_info().get("workers", {})))
+        pending = {}
+
+        def submit(key):
+            fut = client.submit(block_values, remote_model, grid.block(key), lam, n, pure=False)
+            pending[fut.key] = key
+            return fut
+
+        keys = iter(keys)
+        running = as_completed([submit(k) for k in itertools.islice(keys, 2 * workers)])
+        for fut in running:
+            key = pending.pop(fut.key)
+            try:
+                values = fut.result()
+            except Exception as exc:  # the worker died, or the model raised there
+                raise BrdftabError(f"a worker tabulating a block of {grid.describe()} failed "
+                                   f"({type(exc).__name__}: {' '.join(str(exc).split())})") from None
+            self._write_block(key, values, names)
+            if bar is not None:
+                bar.update(int(np.prod(values.shape[:-1])))
+            nxt = next(keys, None)
+            if nxt is not None:
+                running.add(submit(nxt))
 
     def check(self, spec, m, tmp, layers, allow):
         """Judge the file ``tmp`` of output ``m`` as stored and add the report to it; returns the

@@ -164,3 +164,26 @@ def test_two_runs_writing_the_same_file_refuse_the_command(tmp_path):
     r = cli("tabulate", tmp_path / "a.toml", tmp_path / "b.toml")
     one_error(r.stderr, r.exit_code, "a.toml and", "b.toml both write", "same.nc")
     assert names(tmp_path) == ["a.toml", "b.toml"]
+
+
+def test_the_blocks_of_one_big_table_are_tabulated_on_the_cluster(tmp_path, scheduler, monkeypatch):
+    """One spec whose table is over the memory budget, on a cluster: its blocks are tabulated on
+    the workers (the scheduler's task stream shows them) and written here; the file holds the
+    serial run's samples bit for bit, with the same attributes and stored report."""
+    from distributed import get_task_stream
+
+    from brdftab.batch import Engine
+    from brdftab.pipeline import run
+    from brdftab.spec import load_spec
+
+    (tmp_path / "spec.toml").write_text(GGX)
+    monkeypatch.setenv("BRDFTAB_MEMORY", "1M")  # 98 304 samples: streamed in many blocks
+    serial = tmp_path / "serial"
+    run(load_spec(tmp_path / "spec.toml"), out_dir=serial, progress=False, checks={"tabulation": {"level": "off"}})
+    far = tmp_path / "far"
+    with Engine(scheduler=scheduler) as engine, get_task_stream(engine.client) as stream:
+        run(load_spec(tmp_path / "spec.toml"), out_dir=far, progress=False, checks={"tabulation": {"level": "off"}},
+            engine=engine)
+    blocks = [t for t in stream.data if str(t.get("key", "")).startswith("block_values")]
+    assert len(blocks) > 4 and len({t["worker"] for t in blocks}) == 2  # both workers took blocks
+    _same_files(serial, far)
