@@ -269,7 +269,11 @@ def test_sigterm_leaves_no_partial_file(tmp_path):
     proc = _interrupt_run(tmp_path, signal.SIGTERM)
     assert proc.returncode == 143, (proc.returncode, proc.stderr)  # 128 + SIGTERM
     assert "Traceback" not in proc.stderr
-    assert len(proc.stderr.splitlines()) == 1 and "terminated" in proc.stderr
+    lines = proc.stderr.splitlines()
+    # one line; a signal that lands while a file is being written is held until the write is
+    # done, which a notice says first (on a loaded machine the run may be there already)
+    assert lines[-1].startswith("brdftab: terminated") and all(
+        line.startswith("brdftab: finishing the write of") for line in lines[:-1]) and len(lines) <= 2, lines
     assert not (tmp_path / "big.nc").exists()
     assert _partials(tmp_path) == []
     assert sorted(p.name for p in tmp_path.iterdir()) == ["big.toml"]
