@@ -98,6 +98,8 @@ class Grid:
             cls.name = cls.type_name  # the attribute every registry member has (models, formats, checks)
     parameterization = "grid"
     axes: tuple = ()
+    #: A table on the grid evaluates through the compiled kernels (False: through :meth:`locate`).
+    compiled = True
 
     # -- shape ---------------------------------------------------------------------------------
     @property
