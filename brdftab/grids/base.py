@@ -100,6 +100,9 @@ class Grid:
     axes: tuple = ()
     #: A table on the grid evaluates through the compiled kernels (False: through :meth:`locate`).
     compiled = True
+    #: The checks know this grid's node pairs (reciprocity, isotropy partners, node weights);
+    #: False: they judge a table on it by interpolated pairs, as a BRDF.
+    node_checks = True
 
     # -- shape ---------------------------------------------------------------------------------
     @property

@@ -96,6 +96,8 @@ class SpecularPolarGrid(Grid):
     parameterization = "specular-polar"
     #: Tables on this grid interpolate through :meth:`locate` (numpy), not the compiled kernels.
     compiled = False
+    #: The checks judge a table on this grid by interpolated pairs (its nodes have no partners).
+    node_checks = False
     params = (
         _angles("theta_i", "Angles of incidence (required)."),
         _angles("phi_i", "Incident azimuths = sample rotations (default [0])."),
