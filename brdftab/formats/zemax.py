@@ -471,16 +471,6 @@ def _grid(options, anisotropic):
                              azimuth_fold="plane" if plane else "none")
 
 
-def _xyz_values(values, channels):
-    """``values[..., C]`` of channels R, G, B (linear sRGB) or a grey ``mono`` as CIE XYZ through
-    colour-science's ``RGB_to_XYZ`` (the sRGB colourspace, its D65 white, no transfer function)."""
-    import colour
-
-    rgb = np.repeat(values, 3, axis=-1) if channels == ("mono",) else values
-    flat = rgb.reshape(-1, 3)
-    return np.asarray(colour.RGB_to_XYZ(flat, "sRGB", apply_cctf_decoding=False), float).reshape(rgb.shape)
-
-
 def prepare_zemax(brdf, grid, symmetry="Asymmetrical", spectral_content="auto", incidences_deg=None,
                   sample_rotations_deg=None, azimuths_deg=None, radials_deg=None, illuminant="D65",
                   observer="cie1931-2", wavelengths_nm=None):
@@ -492,9 +482,9 @@ def prepare_zemax(brdf, grid, symmetry="Asymmetrical", spectral_content="auto", 
     "Monochrome"`` of a colour source writes its Y. An anisotropic source needs several sample
     rotations (default every 30°)."""
     from ..channels import Layout
-    from ..colorimetry import from_options, to_colour
+    from ..colorimetry import XYZView, from_options, to_colour
     from ..grids import SpecularPolarGrid
-    from ..table import Table, make_table, tabulate, warn_specular_dropped
+    from ..table import Table, tabulate, warn_specular_dropped
 
     options = dict(symmetry=symmetry, spectral_content=spectral_content, incidences_deg=incidences_deg,
                    sample_rotations_deg=sample_rotations_deg, azimuths_deg=azimuths_deg, radials_deg=radials_deg)
@@ -514,27 +504,41 @@ def prepare_zemax(brdf, grid, symmetry="Asymmetrical", spectral_content="auto", 
     source = brdf
     if brdf.spectral:
         source = to_colour(brdf, from_options(illuminant, observer, "XYZ"), wavelengths_nm)
-    elif brdf.channels not in (("mono",), ("R", "G", "B"), ("X", "Y", "Z")):
+        if content == "Monochrome":
+            source = _Y(source)
+    elif brdf.channels in (("R", "G", "B"), ("mono",)):
+        if not (content == "Monochrome" and brdf.channels == ("mono",)):
+            source = XYZView(brdf, luminance_only=content == "Monochrome")
+    elif brdf.channels != ("X", "Y", "Z"):
         raise FormatError(f"a Zemax file stores Monochrome or XYZ data; '{brdf.name}' has channels "
                           f"{', '.join(brdf.channels)}")
+    elif content == "Monochrome":
+        source = _Y(source)
     if isinstance(source, Table) and source.grid.equals(target):
-        table = source
-    else:
-        table = tabulate(source, target)
-    values = np.asarray(table.values, float)
-    channels = table.channels
-    if channels in (("mono",), ("R", "G", "B")) and not (content == "Monochrome" and channels == ("mono",)):
-        values, channels = _xyz_values(values, channels), ("X", "Y", "Z")
-    if content == "Monochrome" and channels == ("X", "Y", "Z"):
-        values, channels = values[..., 1:2], ("mono",)
-    if channels == table.channels:
-        return table
-    provenance = {k: v for k, v in table.ds.attrs.items() if k in ("spec_sha256", "spec_file", "comment")}
-    provenance["colour_conversion"] = "linear sRGB to CIE XYZ by colour-science RGB_to_XYZ (D65 white)"
-    out = make_table(values, target, Layout(channels), brdf=brdf, provenance=provenance)
-    out.origin = getattr(brdf, "origin", "analytic")
-    out.ds.attrs["origin"] = out.origin
-    return out
+        return source
+    return tabulate(source, target)
+
+
+def _Y(base):
+    """The Y channel of an XYZ BRDF, as a grey BRDF (a Monochrome file of a colour source)."""
+    from ..brdf import BRDF
+    from ..channels import Layout
+
+    class LuminanceY(BRDF):
+        layout = Layout(("mono",))
+
+        def __init__(self):
+            self.name, self.base = base.name, base
+            self.isotropic, self.reciprocal, self.origin = base.isotropic, base.reciprocal, base.origin
+
+        @property
+        def parameters(self):
+            return dict(getattr(base, "parameters", {}))
+
+        def _eval(self, wi, wo, lam, n):
+            return np.asarray(base.eval(wi, wo, assume_unit=True), float)[..., 1:2]
+
+    return LuminanceY()
 
 
 def _rounded(table):

@@ -148,6 +148,11 @@ class SpecularPolarGrid(Grid):
         r = self.axes[3].values[i_r]
         return sph_to_vec(ti, pi_), specular_polar_out(ti, pi_, r, az)
 
+    def pair_directions(self, coords):
+        """``(wi, wo)`` of coordinates (one array per axis, in axis order; azimuth folded or not)."""
+        ti, pi_, az, r = coords
+        return sph_to_vec(ti, pi_), specular_polar_out(ti, pi_, r, az)
+
     def _coordinates(self, wi, wo, isotropic: bool = False):
         ti, pi_, r, az = specular_polar_coords(wi, wo)
         if isotropic:
