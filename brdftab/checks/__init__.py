@@ -236,7 +236,7 @@ class Context:
         """A table on one of brdftab's grids (node pairs, domains and node positions are known)."""
         from ..grids import Grid
 
-        return self.is_table and isinstance(self.brdf.grid, Grid) and self.brdf.grid.node_checks
+        return self.is_table and isinstance(self.brdf.grid, Grid)
 
     def memo(self, key, compute):
         """``compute()`` once per ``key`` for this run."""

@@ -100,8 +100,8 @@ class Grid:
     axes: tuple = ()
     #: A table on the grid evaluates through the compiled kernels (False: through :meth:`locate`).
     compiled = True
-    #: The checks know this grid's node pairs (reciprocity, isotropy partners, node weights);
-    #: False: they judge a table on it by interpolated pairs, as a BRDF.
+    #: The checks know this grid's node partners (reciprocity, isotropy, mirror pairs) and node
+    #: weights; False: they compare interpolated pairs instead.
     node_checks = True
 
     # -- shape ---------------------------------------------------------------------------------

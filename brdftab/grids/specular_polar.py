@@ -49,10 +49,12 @@ def specular_polar_out(theta_i, phi_i, radial, azimuth):
     return np.stack(np.broadcast_arrays(cp * x1 - sp * y1, sp * x1 + cp * y1, z1), axis=-1)
 
 
-def specular_polar_coords(wi, wo):
+def specular_polar_coords(wi, wo, phi_at_pole=0.0):
     """``(θi, φi, radial, azimuth ∈ [0, 2π))`` [rad] of direction pairs: the inverse of
-    :func:`specular_polar_out`."""
+    :func:`specular_polar_out`. At normal incidence ωi does not say φi: ``phi_at_pole`` is
+    used (the azimuth origin there is φo = φi)."""
     ti, pi_ = vec_to_sph(wi)
+    pi_ = np.where(ti == 0.0, phi_at_pole, pi_)
     wo = np.asarray(wo, float)
     x, y, z = wo[..., 0], wo[..., 1], wo[..., 2]
     cp, sp = np.cos(pi_), np.sin(pi_)
@@ -96,7 +98,7 @@ class SpecularPolarGrid(Grid):
     parameterization = "specular-polar"
     #: Tables on this grid interpolate through :meth:`locate` (numpy), not the compiled kernels.
     compiled = False
-    #: The checks judge a table on this grid by interpolated pairs (its nodes have no partners).
+    #: The checks compare interpolated pairs on this grid (its nodes have no reciprocal partners).
     node_checks = False
     params = (
         _angles("theta_i", "Angles of incidence (required)."),
@@ -154,7 +156,8 @@ class SpecularPolarGrid(Grid):
         return sph_to_vec(ti, pi_), specular_polar_out(ti, pi_, r, az)
 
     def _coordinates(self, wi, wo, isotropic: bool = False):
-        ti, pi_, r, az = specular_polar_coords(wi, wo)
+        # normal incidence is read in the frame of the first sample rotation (φi node)
+        ti, pi_, r, az = specular_polar_coords(wi, wo, self.axes[1].values[0])
         if isotropic:
             # the radial/azimuth frame turns with φi: an isotropic table answers a φi it does
             # not cover from its first φi node
