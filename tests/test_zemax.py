@@ -219,6 +219,8 @@ def test_a_measured_file_from_the_field_reads_and_converts_to_netcdf(tmp_path):
     assert type(nc.grid).__name__ == "SpecularPolarGrid" and nc.origin == "measured"
     assert np.array_equal(nc.values, table.values)
     assert np.array_equal(nc.eval(wi, wo)[:, 0], want)
+    brdftab.save(table, tmp_path / "r.zarr")  # zarr holds the same grid, value for value
+    assert np.array_equal(brdftab.open(tmp_path / "r.zarr").values, table.values)
     rng = np.random.default_rng(0)
     from brdftab.geometry import sph_to_vec
 
@@ -309,3 +311,24 @@ def test_a_spec_output_tabulates_ggx_gold_to_zemax_validated(tmp_path):
         warnings.simplefilter("ignore", BrdftabWarning)
         d, _ = difference(XYZView(load_spec(tmp_path / "s.toml").model), brdftab.open(out))
     assert d.median_rel <= 0.005 and d.p95_rel <= 0.025
+
+
+def test_a_spectral_model_is_written_as_xyz_through_colorimetry(tmp_path):
+    from brdftab.colorimetry import spectral_to_xyz
+
+    al = {"n": {"wavelengths_nm": [400, 550, 700], "values": [0.490, 0.958, 1.83]},
+          "k": {"wavelengths_nm": [400, 550, 700], "values": [4.86, 6.69, 8.31]}}
+    model = brdftab.models.create("microfacet", alpha=0.3, fresnel="conductor", n=al["n"], k=al["k"])
+    lam = np.linspace(400.0, 700.0, 16)
+    path = tmp_path / "s.bsdf"
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BrdftabWarning)
+        brdftab.save(model, path, format="zemax", wavelengths_nm=lam.tolist(),
+                     **{**SMALL, "incidences_deg": [0, 40], "azimuths_deg": [0, 90, 180, 270]})
+    head, lists, blocks = mini_parse(path.read_text())
+    assert head["SpectralContent"] == "XYZ"
+    for i, a, r in ((0, 0, 3), (1, 1, 5), (1, 2, 8), (0, 3, 10), (1, 0, 2)):
+        wi, wo = convention(lists["AngleOfIncidence"][i], 0.0, lists["ScatterRadial"][r], lists["ScatterAzimuth"][a])
+        xyz = spectral_to_xyz(model.eval(wi, wo, lam), lam)
+        got = [blocks[n][0][0, i, a, r] for n in ("TristimulusX", "TristimulusY", "TristimulusZ")]
+        assert np.allclose(got, xyz, rtol=1e-6)
