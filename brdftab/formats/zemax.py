@@ -162,6 +162,8 @@ class _Tokens:
         tok, line = self.take(what)
         if not _NUMBER.match(tok):
             raise self.error(f"expected {what}, got {tok!r}", line)
+        if not math.isfinite(float(tok)):
+            raise self.error(f"{what}: {tok!r} is beyond the range of a float64", line)
         return float(tok)
 
     def count(self, key):
@@ -186,6 +188,9 @@ class _Tokens:
         if vals is None or not all(_NUMBER.match(t) for t, _ in chunk):
             bad = next((t, ln) for t, ln in chunk if not _NUMBER.match(t))
             raise self.error(f"expected {what}, got {bad[0]!r}", bad[1])
+        if not np.all(np.isfinite(vals)):
+            t, ln = chunk[int(np.flatnonzero(~np.isfinite(vals))[0])]
+            raise self.error(f"{what}: {t!r} is beyond the range of a float64", ln)
         self.k += n
         return vals
 
@@ -285,8 +290,6 @@ def parse_zemax(path, text: str) -> dict:
                             f"got {word!r} (more values than the header counts?)", line)
     if tok.peek() is not None:
         raise tok.error(f"unexpected {tok.peek()!r} after DataEnd")
-    if not np.all(np.isfinite(data)) or not np.all(np.isfinite(tis)):
-        raise FormatError(f"{path}: values that are not finite numbers")
     return {"source": head.get("Source", (None,))[0], "symmetry": sym, "fold": fold, "content": content,
             "rotation": rot, "aoi": aoi, "azimuth": az, "radial": rad, "data": data, "tis": tis,
             "channels": ("mono",) if content == "Monochrome" else ("X", "Y", "Z")}
@@ -481,7 +484,6 @@ def prepare_zemax(brdf, grid, symmetry="Asymmetrical", spectral_content="auto", 
     :mod:`brdftab.colorimetry` with ``illuminant``/``observer``); ``spectral_content =
     "Monochrome"`` of a colour source writes its Y. An anisotropic source needs several sample
     rotations (default every 30°)."""
-    from ..channels import Layout
     from ..colorimetry import XYZView, from_options, to_colour
     from ..grids import SpecularPolarGrid
     from ..table import Table, tabulate, warn_specular_dropped
