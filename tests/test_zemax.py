@@ -363,3 +363,24 @@ def test_mutated_files_give_a_format_error_or_a_table_never_a_crash():
             errors += 1
             assert "\n" not in str(exc) and str(exc).startswith("m.bsdf: line ")
     assert errors > 50
+
+
+def test_an_anisotropic_source_is_written_with_sample_rotations_as_incident_azimuths(tmp_path):
+    model = brdftab.models.create("microfacet", alpha_x=0.15, alpha_y=0.4)
+    path = tmp_path / "a.bsdf"
+    with pytest.raises(FormatError, match="anisotropic.*sample_rotations_deg"):
+        brdftab.save(model, path, format="zemax", sample_rotations_deg=[0], **SMALL)
+    brdftab.save(model, path, format="zemax", sample_rotations_deg=[0, 45, 90, 135, 180, 225, 270, 315],
+                 **{**SMALL, "incidences_deg": [0, 30, 60]})
+    _, lists, blocks = mini_parse(path.read_text())
+    data = blocks["Monochrome"][0]
+    rng = np.random.default_rng(11)
+    for _ in range(25):
+        j, i, a, r = (int(rng.integers(n)) for n in data.shape)
+        r = max(r, 1)
+        wi, wo = convention(lists["AngleOfIncidence"][i], lists["SampleRotation"][j], lists["ScatterRadial"][r],
+                            lists["ScatterAzimuth"][a])
+        if wo[2] > 0.05:
+            assert data[j, i, a, r] == pytest.approx(model.eval(wi, wo)[0], rel=5e-7, abs=1e-12)
+    table = brdftab.open(path)
+    assert not table.isotropic and len(table.grid.axes[1]) == 8
