@@ -37,8 +37,9 @@ from .errors import ParameterError
 from .params import Param
 
 __all__ = ["Colorimetry", "DEFAULT", "OBSERVERS", "COLOURSPACES", "spectral_to_xyz", "spectral_to_rgb",
-           "luminance_weights", "sd_method", "spectral_distribution", "ColourView", "colour_view", "table_to_colour", "to_colour", "PARAMS", "from_options", "seen_as_written",
-           "convert_for_writer", "from_recorded"]
+           "luminance_weights", "sd_method", "spectral_distribution", "ColourView", "colour_view", "table_to_colour",
+           "to_colour", "PARAMS", "from_options", "seen_as_written", "XYZView", "rgb_to_xyz", "convert_for_writer",
+           "from_recorded"]
 
 #: Observers by their short names (the long names of colour-science are accepted too).
 OBSERVERS = {
@@ -94,6 +95,10 @@ def seen_as_written(source, written, options: dict | None = None, wavelengths=No
     that the two can be compared; otherwise ``source`` itself."""
     from .brdf import BRDF
 
+    if (isinstance(written, BRDF) and isinstance(source, BRDF) and not source.spectral and not written.spectral
+            and source.channels in (("R", "G", "B"), ("mono",)) and source.channels != written.channels
+            and written.channels in (("X", "Y", "Z"), ("mono",))):
+        return XYZView(source, luminance_only=written.channels == ("mono",))
     if not getattr(source, "spectral", False) or not isinstance(written, BRDF) or written.spectral:
         return source
     opts = {k: v for k, v in (options or {}).items() if k in ("illuminant", "observer")}
@@ -311,6 +316,53 @@ class ColourView(BRDF):
 
     def _eval(self, wi, wo, lam, n):
         return np.asarray(self.base.eval(wi, wo, self.wavelengths_nm, assume_unit=True), float) @ self._m
+
+
+class XYZView(BRDF):
+    """An RGB (linear sRGB) or grey BRDF seen in CIE XYZ through colour-science's
+    ``RGB_to_XYZ`` (the sRGB colourspace and its D65 white; a grey f is the RGB (f, f, f)), or
+    its Y alone (``luminance_only``): what a writer that stores XYZ writes of it."""
+
+    def __init__(self, base: BRDF, luminance_only: bool = False):
+        if base.spectral or base.channels not in (("R", "G", "B"), ("mono",)):
+            raise ParameterError("channels", f"'{base.name}' is not RGB or grey: nothing to convert to XYZ")
+        self.base, self.luminance_only = base, luminance_only
+        self.layout = Layout(("mono",) if luminance_only else ("X", "Y", "Z"))
+        self.name = base.name
+        self.isotropic, self.reciprocal, self.origin = base.isotropic, base.reciprocal, base.origin
+        self.energy_conserving = False
+
+    @property
+    def parameters(self):
+        return dict(getattr(self.base, "parameters", {}))
+
+    def describe(self) -> str:
+        return f"{self.base.describe()} in CIE XYZ (from linear sRGB)"
+
+    @property
+    def lobe_width(self):
+        return self.base.lobe_width
+
+    @property
+    def lobe_axes(self):
+        return self.base.lobe_axes
+
+    def _eval(self, wi, wo, lam, n):
+        xyz = rgb_to_xyz(np.asarray(self.base.eval(wi, wo, assume_unit=True), float), self.base.channels)
+        return xyz[..., 1:2] if self.luminance_only else xyz
+
+
+def rgb_to_xyz(values, channels=("R", "G", "B")) -> np.ndarray:
+    """``values[..., 3]`` in linear sRGB (or ``[..., 1]`` grey, as (f, f, f)) to CIE XYZ by
+    colour-science's ``RGB_to_XYZ`` (sRGB colourspace, its D65 white, no transfer function)."""
+    import colour
+
+    v = np.asarray(values, float)
+    if tuple(channels) == ("mono",):
+        v = np.repeat(v, 3, axis=-1)
+    with np.errstate(invalid="ignore"):
+        out = colour.RGB_to_XYZ(v.reshape(-1, 3), "sRGB", apply_cctf_decoding=False)
+    return np.asarray(out, float).reshape(v.shape)
 
 
 def colour_view(brdf: BRDF, colorimetry: Colorimetry | None = None, wavelengths=None) -> ColourView:

@@ -481,7 +481,7 @@ class Table(BRDF):
         docstring), in one compiled pass per pair written into the result: the same
         normalization, NaN and horizon rules as every BRDF, then grid coordinates, weights over
         the valid nodes and the channels (numpy inside :func:`brdftab.brdf.numpy_reference`)."""
-        if self._slab_mode() or not compiled_enabled():
+        if self._slab_mode() or not compiled_enabled() or not self.grid.compiled:
             return BRDF.eval(self, wi, wo, wavelengths, assume_unit=assume_unit)
         from .geometry import as_directions
 
@@ -493,7 +493,7 @@ class Table(BRDF):
         return self._channels(out, lam, n).reshape(lead + (n,))
 
     def _eval(self, wi, wo, lam, n):
-        if self._slab_mode() or not compiled_enabled():
+        if self._slab_mode() or not compiled_enabled() or not self.grid.compiled:
             return self._eval_numpy(wi, wo, lam, n)
         return self._channels(self._interpolate(wi, wo, False), lam, n)
 

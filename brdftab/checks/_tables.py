@@ -271,6 +271,9 @@ def pair_directions(grid, coords):
     """(wi, wo) of grid coordinates (one array per axis, in the grid's axis order)."""
     from ..geometry import hd_to_io, sph_to_vec
 
+    own = getattr(grid, "pair_directions", None)
+    if callable(own):
+        return own(coords)
     c = dict(zip(grid.dims, coords))
     if grid.parameterization == "rusinkiewicz":
         return hd_to_io(c["theta_h"], c.get("phi_h", 0.0), c["theta_d"], c["phi_d"])

@@ -128,6 +128,8 @@ def node_pairs(ctx):
             for key, v in data_blocks(ctx):
                 yield phi_d_pairs(grid, v, j, key)
         return rows
+    if not grid.node_checks:
+        return None  # nodes without partners: pairs are sampled and interpolated
     if over_budget(table):
         raise NotBlockable("a gonio table's (θi, φi) ↔ (θo, φo) node pairs span the whole table, which is over "
                            "the memory budget")

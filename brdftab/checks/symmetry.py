@@ -122,7 +122,7 @@ class Isotropy(_Pairwise):
         declared = b.isotropic
         passed = None if declared else True
         note = "" if declared else " (declared anisotropic: reported, not judged)"
-        if ctx.on_grid:
+        if ctx.on_grid and b.grid.node_checks:
             grid = b.grid
             if grid.parameterization == "rusinkiewicz":
                 if "phi_h" not in grid.dims:
@@ -177,7 +177,7 @@ class Bilateral(_Pairwise):
 
     def run(self, ctx, max_relative, weighted, pairs, seed):
         b = ctx.brdf
-        if ctx.on_grid:
+        if ctx.on_grid and b.grid.node_checks:
             grid = b.grid
             if grid.parameterization == "rusinkiewicz":
                 fold = grid.phi_d_fold

@@ -12,6 +12,8 @@ keys declared as :class:`~brdftab.params.Param`:
     the exact MERL 90×90×180 grid (a Rusinkiewicz grid with MERL's warp, bins and fold).
 ``spherical`` (:mod:`.spherical`)
     gonio axes ``theta_i, phi_i, theta_o, phi_o`` (or offsets from the mirror direction).
+``specular-polar`` (:mod:`.specular_polar`)
+    ``theta_i, phi_i, spec_azimuth, spec_radial``: polar angles about the mirror direction (Zemax .bsdf).
 
 Axes, the φd folds and angle lists live in :mod:`.axis`.
 """
@@ -25,8 +27,9 @@ from .base import COMMON_PARAMS, GRIDS, Grid, grid_from_config, grid_from_datase
 from .merl import merl_grid
 from .rusinkiewicz import RusinkiewiczGrid
 from .spherical import SphericalGrid
+from .specular_polar import SpecularPolarGrid
 
-__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "merl_grid",
+__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "merl_grid",
            "grid_from_config", "grid_from_dataset", "grid_wavelengths", "check_grid", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS",
            "COMMON_PARAMS", "register"]
 

@@ -98,6 +98,11 @@ class Grid:
             cls.name = cls.type_name  # the attribute every registry member has (models, formats, checks)
     parameterization = "grid"
     axes: tuple = ()
+    #: A table on the grid evaluates through the compiled kernels (False: through :meth:`locate`).
+    compiled = True
+    #: The checks know this grid's node partners (reciprocity, isotropy, mirror pairs) and node
+    #: weights; False: they compare interpolated pairs instead.
+    node_checks = True
 
     # -- shape ---------------------------------------------------------------------------------
     @property
