@@ -4,7 +4,8 @@ One pass per direction pair, written straight into the caller's output array:
 
 * :func:`table_eval` — a :class:`~brdftab.table.Table`: the pair's grid coordinates (Rusinkiewicz
   half/difference angles with the table's φd fold, or gonio angles, absolute or relative to the
-  mirror direction, with the isotropic rotation onto the first φi node), the fractional index on
+  mirror direction, with the isotropic rotation onto the first φi node and a bilateral grid's
+  mirror fold of φo − φi), the fractional index on
   each axis (``Axis.fractional_index``: linear or square-root warped, periodic, wrapped arcs,
   snapping onto nodes), the domain test (``Axis.outside``) and the multilinear weights over the
   valid corners (renormalized; missing samples and below-horizon nodes left out; horizon ghosts
@@ -341,7 +342,7 @@ def _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f):
     pi_ = _atan2(iy, ix)
     to = _atan2(_hypot(ox, oy), oz)
     po = _atan2(oy, ox)
-    if iso:
+    if iso or fold == 2:
         off = True
         if ax_i[1, 0] > 1:
             off = _axis_outside(pi_, 1, ax_i, ax_f)
@@ -349,6 +350,8 @@ def _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f):
             shift = ax_f[1, 4] - pi_
             pi_ = pi_ + shift
             po = po + shift
+    if fold == 2:  # a bilateral gonio grid: |φo − φi| folded into [0, π]
+        po = pi_ + abs(_mod(po - pi_ + PI, TWO_PI) - PI)
     if kind == SPHERICAL_SPECULAR:
         to = to - ti
         po = _mod(po - pi_, TWO_PI) - PI
@@ -633,7 +636,7 @@ class TablePlan:
         p = getattr(grid, "parameterization", "")
         if p == "spherical":
             self.kind = SPHERICAL_SPECULAR if grid.relative_to == "specular" else SPHERICAL
-            self.fold = 0
+            self.fold = FOLDS[getattr(grid, "phi_d_fold", "none")]  # none or bilateral
         else:
             self.kind = RUSINKIEWICZ
             self.fold = FOLDS[grid.phi_d_fold]

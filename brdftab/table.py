@@ -337,7 +337,10 @@ class Table(BRDF):
         weight sinθ cosθo, and the centre in φ (linear, constant weight). A GGX α = 0.1 gonio
         table of 10° steps integrates to a fine quadrature of the same interpolant within 0.1 %
         (tested). The rule covers the table's domain (its coverage is that domain's projected
-        solid angle)."""
+        solid angle): an axis whose domain is wider than its nodes (cell-centred nodes, an MDL
+        ``.mbsdf`` table) adds the cells between the domain's edges and the end nodes, where the
+        table holds its end values, and a bilateral grid (φo − φi folded into [0, π]) counts its
+        half circle twice."""
         if getattr(self.grid, "parameterization", "") != "spherical":
             return None
         return self._gonio_rule
@@ -354,6 +357,9 @@ class Table(BRDF):
             v = np.asarray(ax.values, float)
             if ax.period is not None and v.size > 1:
                 v = np.append(v, v[0] + ax.period)
+            elif ax.period is None:  # a domain wider than the nodes (cell-centred nodes): its edges too
+                lo, hi = ax.domain
+                v = np.concatenate([[lo] if lo < v[0] - 1e-9 else [], v, [hi] if hi > v[-1] + 1e-9 else []])
             if v.size < 2:
                 return np.array([]), np.array([])
             x, w = gauss_legendre(nodes, 0.0, 1.0)
@@ -367,10 +373,13 @@ class Table(BRDF):
             return np.zeros((0, 3)), np.zeros(0)
         T, P = np.meshgrid(t_mid, p_mid, indexing="ij")
         W = dt[:, None] * dp[None, :]
+        bilateral = getattr(grid, "phi_d_fold", "none") == "bilateral"
+        if bilateral:
+            W = 2.0 * W  # the mirror half circle: f(φi − Δφ) = f(φi + Δφ) by the fold
         if grid.relative_to == "specular":
             T = ti + T
             P = pi_ + np.pi + P
-        elif self.isotropic:
+        elif self.isotropic or bilateral:
             ax = grid.axes[1]
             off = ax.outside(np.array([pi_]))[0] if len(ax) > 1 else True
             if off:  # the table answers this φi by rotation onto its first φi node
