@@ -211,9 +211,9 @@ def _axis_index(x, a, ax_i, ax_f, xp, slope):
         m = n + 1
     else:
         t = x
-        if kind == WRAPPED:
+        if kind == WRAPPED:  # reduced into [domain low, + wrap): the domain may start before the first node
             wrap = ax_f[a, 1]
-            t = v0 + _mod(x - v0, wrap)
+            t = ax_f[a, 2] + _mod(x - ax_f[a, 2], wrap)
             v1 = ax_f[a, 5]
             if t > v1 and v0 + wrap - t < t - v1:
                 t = v0
@@ -244,7 +244,7 @@ def _axis_outside(x, a, ax_i, ax_f):
         return not math.isfinite(x)
     xr = x
     if kind == WRAPPED:
-        xr = ax_f[a, 4] + _mod(x - ax_f[a, 4], ax_f[a, 1])
+        xr = ax_f[a, 2] + _mod(x - ax_f[a, 2], ax_f[a, 1])
     lo, hi = ax_f[a, 2], ax_f[a, 3]
     out = (xr < lo - DOMAIN_TOL) or (xr > hi + DOMAIN_TOL) or not math.isfinite(xr)
     if kind == WRAPPED and abs(xr - ax_f[a, 1] - lo) <= DOMAIN_TOL:

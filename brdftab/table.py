@@ -361,14 +361,20 @@ class Table(BRDF):
                 lo, hi = ax.domain
                 v = np.concatenate([[lo] if lo < v[0] - 1e-9 else [], v, [hi] if hi > v[-1] + 1e-9 else []])
             if v.size < 2:
-                return np.array([]), np.array([])
+                return np.array([]), np.array([]), v
             x, w = gauss_legendre(nodes, 0.0, 1.0)
-            return (v[:-1, None] + np.diff(v)[:, None] * x).ravel(), (np.diff(v)[:, None] * w).ravel()
+            return (v[:-1, None] + np.diff(v)[:, None] * x).ravel(), (np.diff(v)[:, None] * w).ravel(), v
 
         # 2 Gauss–Legendre nodes per cell in θ (f, linear there, meets sinθ cosθ), the centre
         # in φ (f linear, the weight constant)
-        t_mid, dt = cells(a_to, 2)
-        p_mid, dp = cells(a_po, 1)
+        t_mid, dt, t_edges = cells(a_to, 2)
+        p_mid, dp, _ = cells(a_po, 1)
+        if grid.relative_to != "specular" and t_mid.size:
+            # each θ cell's weights scaled to its exact projected solid angle ½(sin²b − sin²a):
+            # a constant f integrates exactly, and a rule over the whole hemisphere covers π
+            approx = (dt * np.sin(t_mid) * np.cos(t_mid)).reshape(-1, 2).sum(axis=1)
+            exact = 0.5 * (np.sin(t_edges[1:]) ** 2 - np.sin(t_edges[:-1]) ** 2)
+            dt = dt * np.repeat(np.where(approx > 0, exact / np.where(approx > 0, approx, 1.0), 1.0), 2)
         if t_mid.size == 0 or p_mid.size == 0:
             return np.zeros((0, 3)), np.zeros(0)
         T, P = np.meshgrid(t_mid, p_mid, indexing="ij")
