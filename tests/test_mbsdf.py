@@ -19,6 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 import brdftab
 from brdftab import formats, models, pipeline
@@ -61,7 +63,7 @@ def build(values, meta=(), marker=b"MBSDF_DATA_REFLECTION=\n", transmission=None
     def block(v):
         kind = 1 if v.shape[-1] == 3 else 0
         return struct.pack("<III", kind, v.shape[0], v.shape[2]) + np.ascontiguousarray(v, "<f4").tobytes()
-    out = b"NVIDIA ARC MBSDF V1\n" + b"".join(m.encode() + b"\n" for m in meta) + marker + block(values)
+    out = b"NVIDIA ARC MBSDF V1\n" + b"".join((m if isinstance(m, bytes) else m.encode()) + b"\n" for m in meta) + marker + block(values)
     if transmission is not None:
         out += b"MBSDF_DATA_TRANSMISSION=\n" + block(transmission)
     return out
@@ -199,7 +201,7 @@ def test_reader_places_file_values_at_cell_centres(tmp_path):
     t = brdftab.open(path)
     assert t.channels == ("R", "G", "B") and t.origin == "unknown" and t.isotropic
     assert not t.reciprocal and "reciprocal" not in t.ds.attrs  # reciprocity is not declared
-    assert t.ds.attrs["mbsdf_metadata"] == 'description="a test file"\nfree text = as it comes'
+    assert t.ds.attrs["mbsdf_metadata"] == 'description="a test file"\nfree text = as it comes\n'
     assert t.ds.attrs["source_quantity"].startswith("f_r [sr-1] as stored")
     i, j, k, rng = random_cells(60, n, m, 5)
     wi, wo = cell_pairs(i, j, k, n, m, rng)
@@ -218,15 +220,17 @@ def test_reader_places_file_values_at_cell_centres(tmp_path):
     assert np.array_equal(g.values[:, 0, ..., 0], v[..., 0])
 
 
-def test_mbsdf_to_netcdf_and_back_is_byte_identical(tmp_path):
-    """.mbsdf → .nc → .mbsdf keeps every byte (metadata lines, the older data marker, float32
-    samples); the netCDF table evaluates exactly as the .mbsdf reader's."""
+@pytest.mark.parametrize("store", [".nc", ".zarr"])
+def test_mbsdf_to_netcdf_and_back_is_byte_identical(tmp_path, store):
+    """.mbsdf → .nc (or .zarr) → .mbsdf keeps every byte (metadata lines, the older data marker,
+    float32 samples); the netCDF or zarr table evaluates exactly as the .mbsdf reader's."""
     rng = np.random.default_rng(6)
     for marker, c in ((b"MBSDF_DATA_REFLECTION=\n", 3), (b"MBSDF_DATA=\n", 1)):
         v = rng.uniform(0.0, 2.0, (5, 5, 8, c)).astype(np.float32)
         src = tmp_path / "src.mbsdf"
-        src.write_bytes(build(v, meta=['description="round trip"', 'quoted="a \\"b\\" c"'], marker=marker))
-        nc, back = tmp_path / "t.nc", tmp_path / "back.mbsdf"
+        meta = ['description="round trip"', 'quoted="a \\"b\\" c"', ""] if c == 3 else [b'name="caf\xe9"', ""]  # Latin-1, an empty line
+        src.write_bytes(build(v, meta=meta, marker=marker))
+        nc, back = tmp_path / f"t{store}", tmp_path / "back.mbsdf"
         convert(src, nc, overwrite=True, progress=False)
         convert(nc, back, overwrite=True, progress=False)
         assert back.read_bytes() == src.read_bytes()
@@ -338,3 +342,24 @@ def test_options_are_checked(tmp_path):
     with pytest.raises(BrdftabError, match="did you mean 'res_phi'"):
         brdftab.save(GGX, tmp_path / "x.mbsdf", res_ph=3)
     assert not (tmp_path / "x.mbsdf").exists()
+
+
+@settings(deadline=None, database=None, max_examples=150, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.tuples(st.integers(0, 400), st.integers(0, 255)), max_size=6), st.integers(0, 400),
+       st.binary(max_size=8))
+def test_mutated_files_give_a_table_or_one_line(tmp_path, edits, cut, tail):
+    """Random byte changes, a cut and appended bytes: a table or one brdftab error line naming the file."""
+    data = bytearray(build(np.arange(2 * 2 * 3 * 3, dtype=np.float32).reshape(2, 2, 3, 3) / 7,
+                           meta=['description="x"']))
+    for pos, byte in edits:
+        data[pos % len(data)] = byte
+    content = bytes(data[:max(cut, len(data) - 40)]) + tail
+    path = tmp_path / "fuzz.mbsdf"
+    path.write_bytes(content)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", BrdftabWarning)
+            t = brdftab.open(path)
+            t.values
+    except BrdftabError as exc:
+        assert "\n" not in str(exc) and str(path) in str(exc), str(exc)

@@ -57,8 +57,10 @@ DEFAULT_RES_THETA, DEFAULT_RES_PHI = 45, 90
 MAX_RES = 4096
 RGB = ("R", "G", "B")
 GREY = ("mono",)
-#: Table attribute holding the file's metadata lines (newline-separated), written back as they are.
+#: Table attribute holding the file's metadata lines, each ending in a newline, written back as they are.
 METADATA_ATTR = "mbsdf_metadata"
+#: Table attribute naming the encoding of metadata lines that are not UTF-8 (kept byte for byte).
+ENCODING_ATTR = "mbsdf_metadata_encoding"
 QUANTITY = ("f_r [sr-1] as stored: the file holds BSDF values without the cosine factor (no conversion), at cell "
             "centres theta = (i + 0.5) * 90 deg / res_theta and |phi_o - phi_i| = (k + 0.5) * 180 deg / res_phi")
 
@@ -111,11 +113,14 @@ def _block(path, data: bytes, pos: int, what: str):
     return kind, rt, rp, np.frombuffer(data, "<f4", count, start), end
 
 
-def _text(line: bytes) -> str:
+def _text(lines: list) -> tuple:
+    """``(text, encoding)`` of the metadata lines, each ending in a newline: UTF-8, else Latin-1
+    (free bytes, kept one to one)."""
+    raw = b"".join(lines)
     try:
-        return line.decode("utf-8")
+        return raw.decode("utf-8"), "utf-8"
     except UnicodeDecodeError:
-        return line.decode("latin-1")  # free bytes: kept one to one
+        return raw.decode("latin-1"), "latin-1"
 
 
 def read_mbsdf(path):
@@ -147,7 +152,7 @@ def read_mbsdf(path):
         elif line.endswith(b"\r\n") and line[:-2] + b"\n" in (REFLECTION, LEGACY, TRANSMISSION):
             raise FormatError(f"{path}: .mbsdf lines end in CRLF; the format (and the MDL SDK) needs LF line ends")
         else:
-            meta.append(_text(line[:-1]))
+            meta.append(line)
     kind, rt, rp, samples, end = _block(path, data, pos, "reflection")
     rest = data[end:]
     if rest.startswith(TRANSMISSION):
@@ -172,8 +177,10 @@ def read_mbsdf(path):
         "source_format": "mbsdf",
         "source_quantity": QUANTITY,
         "mbsdf_type": "rgb" if kind else "scalar",
-        METADATA_ATTR: "\n".join(meta),
     }
+    provenance[METADATA_ATTR], encoding = _text(meta)
+    if encoding != "utf-8":
+        provenance[ENCODING_ATTR] = encoding
     if marker == LEGACY:
         provenance["mbsdf_data_marker"] = LEGACY[:-1].decode()
     table = make_table(values, mbsdf_grid(rt, rp), Layout(RGB if kind else GREY), provenance=provenance)
@@ -197,12 +204,14 @@ def _quoted(value) -> str:
 
 
 def _metadata_lines(table) -> list:
-    """The metadata lines written for ``table``: those of the file it was read from, else what
-    brdftab knows of its source (``key="quoted value"``, the MDL convention)."""
+    """The metadata lines (bytes, without their newline) written for ``table``: those of the file
+    it was read from, else what brdftab knows of its source (``key="quoted value"``, the MDL
+    convention)."""
     attrs = table.ds.attrs
     if METADATA_ATTR in attrs:
-        text = str(attrs[METADATA_ATTR])
-        return text.split("\n") if text else []
+        encoding = "latin-1" if attrs.get(ENCODING_ATTR) == "latin-1" else "utf-8"
+        raw = str(attrs[METADATA_ATTR]).encode(encoding)
+        return raw[:-1].split(b"\n") if raw.endswith(b"\n") else raw.split(b"\n") if raw else []
     items = [("description", attrs.get("title", table.name)), ("model", attrs.get("model")),
              ("parameters", attrs.get("parameters")), ("spec_sha256", attrs.get("spec_sha256")),
              ("origin", getattr(table, "origin", None)), ("quantity", QUANTITY),
@@ -211,8 +220,8 @@ def _metadata_lines(table) -> list:
     for key, value in items:
         if value in (None, "", "{}"):
             continue
-        line = f"{key}={_quoted(value)}"
-        if len(line.encode("utf-8")) > MAX_LINE:
+        line = f"{key}={_quoted(value)}".encode("utf-8")
+        if len(line) > MAX_LINE:
             continue  # the MDL SDK reads 1024-byte lines: a longer one would be split
         lines.append(line)
     return lines
@@ -227,9 +236,8 @@ def write_mbsdf(table, path, res_theta=None, res_phi=None, phi_h_average=False, 
         raise FormatError(f"an .mbsdf file stores one grey channel or R, G, B, not {table.channels or 'a spectrum'}")
     lines = _metadata_lines(table)
     for k, line in enumerate(lines):
-        raw = line.encode("utf-8")
-        if b"\n" in raw or raw + b"\n" in (REFLECTION, LEGACY, TRANSMISSION) or raw + b"\n" == MAGIC:
-            raise FormatError(f"metadata line {k + 1} ({line[:40]!r}) would be read as a marker or split")
+        if line + b"\n" in (REFLECTION, LEGACY, TRANSMISSION):
+            raise FormatError(f"metadata line {k + 1} ({line[:40]!r}) would be read as a data marker")
     marker = LEGACY if table.ds.attrs.get("mbsdf_data_marker") == LEGACY[:-1].decode() else REFLECTION
     kind = int(table.channels == RGB)
     values = np.asarray(table.values)[:, 0]  # [θi, θo, Δφ, C]
@@ -237,7 +245,7 @@ def write_mbsdf(table, path, res_theta=None, res_phi=None, phi_h_average=False, 
     with open(path, "wb") as fh:
         fh.write(MAGIC)
         for line in lines:
-            fh.write(line.encode("utf-8") + b"\n")
+            fh.write(line + b"\n")
         fh.write(marker)
         fh.write(struct.pack("<3I", kind, *res))
         fh.write(memoryview(samples).cast("B"))
@@ -289,7 +297,7 @@ def prepare_mbsdf(brdf, grid, res_theta=None, res_phi=None, phi_h_average=False,
         colour_note = (f"{from_options(illuminant, observer).describe()} from {len(lam)} wavelengths "
                        f"({min(lam):g}-{max(lam):g} nm) through colour-science")
         brdf = converted
-    target = grid if _grid_res(grid) is not None else native_grid(None, {"res_theta": res_theta, "res_phi": res_phi})
+    target = native_grid(grid, {"res_theta": res_theta, "res_phi": res_phi})
     if brdf.spectral or brdf.channels not in (GREY, RGB):
         raise FormatError(f"an .mbsdf file stores one grey channel or R, G, B; '{brdf.name}' has channels "
                           f"{', '.join(brdf.channels or ('a spectrum',))}")
