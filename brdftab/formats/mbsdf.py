@@ -14,7 +14,7 @@ and [0, π], and ``phi_d_fold = "bilateral"`` (:func:`mbsdf_grid`): netCDF and z
 and a table on it evaluates as the reader's does. Between the domain edges and the first or last
 cell centre the table holds the end value (as the MDL runtime's clamped texture lookup does).
 
-Reading keeps the metadata lines (attribute ``mbsdf_metadata``), sets ``origin = "unknown"``
+Reading keeps the metadata lines byte for byte (attribute ``mbsdf_metadata``), sets ``origin = "unknown"``
 and declares no reciprocity (measured files are not reciprocal); a transmission block is skipped
 with a warning (brdftab holds reflection only). Writing copies a table already on an ``.mbsdf``
 grid value for value (with its metadata lines: ``.mbsdf`` → netCDF → ``.mbsdf`` is byte-identical)
