@@ -27,7 +27,7 @@ from brdftab import formats, models, pipeline
 from brdftab.convert import convert
 from brdftab.errors import BrdftabError, BrdftabWarning, FormatError
 
-from _cli import cli, one_error, run
+from _cli import cli, one_error
 
 GOLD = dict(n=[0.143119, 0.374957, 1.44248], k=[3.98316, 2.38572, 1.60322])
 GGX = models.create("microfacet", distribution="ggx", alpha=0.2, shadowing="smith", fresnel="conductor", **GOLD)
@@ -182,8 +182,8 @@ def test_spec_output_tabulates_to_mbsdf_validated_before_export(tmp_path):
     big = tmp_path / "big.toml"
     big.write_text('[model]\nname = "scale"\nfactor = 2e40\n[model.term]\nname = "lambert"\nalbedo = 0.5\n'
                    '[grid]\ntype = "merl"\n[[output]]\npath = "big.mbsdf"\nres_theta = 4\nres_phi = 4\n')
-    r = run("tabulate", big, "--level", "energy=off")
-    assert r.returncode == 1, r.stderr
+    r = cli("tabulate", big, "--level", "energy=off")
+    assert r.exit_code == 1, r.stderr
     assert "finite: 64 of 64 samples are NaN or infinite (0 NaN, 64 infinite)" in r.stderr
     assert not (tmp_path / "big.mbsdf").exists()
 
