@@ -4,7 +4,8 @@ One pass per direction pair, written straight into the caller's output array:
 
 * :func:`table_eval` — a :class:`~brdftab.table.Table`: the pair's grid coordinates (Rusinkiewicz
   half/difference angles with the table's φd fold, or gonio angles, absolute or relative to the
-  mirror direction, with the isotropic rotation onto the first φi node), the fractional index on
+  mirror direction, with the isotropic rotation onto the first φi node and a bilateral grid's
+  mirror fold of φo − φi), the fractional index on
   each axis (``Axis.fractional_index``: linear or square-root warped, periodic, wrapped arcs,
   snapping onto nodes), the domain test (``Axis.outside``) and the multilinear weights over the
   valid corners (renormalized; missing samples and below-horizon nodes left out; horizon ghosts
@@ -210,9 +211,9 @@ def _axis_index(x, a, ax_i, ax_f, xp, slope):
         m = n + 1
     else:
         t = x
-        if kind == WRAPPED:
+        if kind == WRAPPED:  # reduced into [domain low, + wrap): the domain may start before the first node
             wrap = ax_f[a, 1]
-            t = v0 + _mod(x - v0, wrap)
+            t = ax_f[a, 2] + _mod(x - ax_f[a, 2], wrap)
             v1 = ax_f[a, 5]
             if t > v1 and v0 + wrap - t < t - v1:
                 t = v0
@@ -243,7 +244,7 @@ def _axis_outside(x, a, ax_i, ax_f):
         return not math.isfinite(x)
     xr = x
     if kind == WRAPPED:
-        xr = ax_f[a, 4] + _mod(x - ax_f[a, 4], ax_f[a, 1])
+        xr = ax_f[a, 2] + _mod(x - ax_f[a, 2], ax_f[a, 1])
     lo, hi = ax_f[a, 2], ax_f[a, 3]
     out = (xr < lo - DOMAIN_TOL) or (xr > hi + DOMAIN_TOL) or not math.isfinite(xr)
     if kind == WRAPPED and abs(xr - ax_f[a, 1] - lo) <= DOMAIN_TOL:
@@ -341,7 +342,7 @@ def _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f):
     pi_ = _atan2(iy, ix)
     to = _atan2(_hypot(ox, oy), oz)
     po = _atan2(oy, ox)
-    if iso:
+    if iso or fold == 2:
         off = True
         if ax_i[1, 0] > 1:
             off = _axis_outside(pi_, 1, ax_i, ax_f)
@@ -349,6 +350,8 @@ def _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f):
             shift = ax_f[1, 4] - pi_
             pi_ = pi_ + shift
             po = po + shift
+    if fold == 2:  # a bilateral gonio grid: |φo − φi| folded into [0, π]
+        po = pi_ + abs(_mod(po - pi_ + PI, TWO_PI) - PI)
     if kind == SPHERICAL_SPECULAR:
         to = to - ti
         po = _mod(po - pi_, TWO_PI) - PI
@@ -633,7 +636,7 @@ class TablePlan:
         p = getattr(grid, "parameterization", "")
         if p == "spherical":
             self.kind = SPHERICAL_SPECULAR if grid.relative_to == "specular" else SPHERICAL
-            self.fold = 0
+            self.fold = FOLDS[getattr(grid, "phi_d_fold", "none")]  # none or bilateral
         else:
             self.kind = RUSINKIEWICZ
             self.fold = FOLDS[grid.phi_d_fold]

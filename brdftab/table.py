@@ -338,7 +338,10 @@ class Table(BRDF):
         weight sinθ cosθo, and the centre in φ (linear, constant weight). A GGX α = 0.1 gonio
         table of 10° steps integrates to a fine quadrature of the same interpolant within 0.1 %
         (tested). The rule covers the table's domain (its coverage is that domain's projected
-        solid angle)."""
+        solid angle): an axis whose domain is wider than its nodes (cell-centred nodes, an MDL
+        ``.mbsdf`` table) adds the cells between the domain's edges and the end nodes, where the
+        table holds its end values, and a bilateral grid (φo − φi folded into [0, π]) counts its
+        half circle twice."""
         if getattr(self.grid, "parameterization", "") != "spherical":
             return None
         return self._gonio_rule
@@ -355,23 +358,35 @@ class Table(BRDF):
             v = np.asarray(ax.values, float)
             if ax.period is not None and v.size > 1:
                 v = np.append(v, v[0] + ax.period)
+            elif ax.period is None:  # a domain wider than the nodes (cell-centred nodes): its edges too
+                lo, hi = ax.domain
+                v = np.concatenate([[lo] if lo < v[0] - 1e-9 else [], v, [hi] if hi > v[-1] + 1e-9 else []])
             if v.size < 2:
-                return np.array([]), np.array([])
+                return np.array([]), np.array([]), v
             x, w = gauss_legendre(nodes, 0.0, 1.0)
-            return (v[:-1, None] + np.diff(v)[:, None] * x).ravel(), (np.diff(v)[:, None] * w).ravel()
+            return (v[:-1, None] + np.diff(v)[:, None] * x).ravel(), (np.diff(v)[:, None] * w).ravel(), v
 
         # 2 Gauss–Legendre nodes per cell in θ (f, linear there, meets sinθ cosθ), the centre
         # in φ (f linear, the weight constant)
-        t_mid, dt = cells(a_to, 2)
-        p_mid, dp = cells(a_po, 1)
+        t_mid, dt, t_edges = cells(a_to, 2)
+        p_mid, dp, _ = cells(a_po, 1)
+        if grid.relative_to != "specular" and t_mid.size:
+            # each θ cell's weights scaled to its exact projected solid angle ½(sin²b − sin²a):
+            # a constant f integrates exactly, and a rule over the whole hemisphere covers π
+            approx = (dt * np.sin(t_mid) * np.cos(t_mid)).reshape(-1, 2).sum(axis=1)
+            exact = 0.5 * (np.sin(t_edges[1:]) ** 2 - np.sin(t_edges[:-1]) ** 2)
+            dt = dt * np.repeat(np.where(approx > 0, exact / np.where(approx > 0, approx, 1.0), 1.0), 2)
         if t_mid.size == 0 or p_mid.size == 0:
             return np.zeros((0, 3)), np.zeros(0)
         T, P = np.meshgrid(t_mid, p_mid, indexing="ij")
         W = dt[:, None] * dp[None, :]
+        bilateral = getattr(grid, "phi_d_fold", "none") == "bilateral"
+        if bilateral:
+            W = 2.0 * W  # the mirror half circle: f(φi − Δφ) = f(φi + Δφ) by the fold
         if grid.relative_to == "specular":
             T = ti + T
             P = pi_ + np.pi + P
-        elif self.isotropic:
+        elif self.isotropic or bilateral:
             ax = grid.axes[1]
             off = ax.outside(np.array([pi_]))[0] if len(ax) > 1 else True
             if off:  # the table answers this φi by rotation onto its first φi node

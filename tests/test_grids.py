@@ -204,3 +204,36 @@ def test_explicit_phi_d_slices_cover_only_their_arc(tmp_path):
     assert ring.axes[2].period == pytest.approx(np.pi)
     brdftab.save(t, tmp_path / "one.nc")
     assert brdftab.open(tmp_path / "one.nc").grid.axes[2].period is None
+
+
+def test_wrapped_axis_domain_may_start_before_its_first_node():
+    """Cell-centred azimuths (nodes at (k + ½)·30° over a [0, 180°] domain): a query between the
+    domain's low edge and the first node is inside and takes the first node's value; the uncovered
+    arc stays outside."""
+    from brdftab.grids.axis import Axis
+
+    ax = Axis("phi_o", np.radians([15.0, 45, 75, 105, 135, 165]), wrap=2 * np.pi, domain=(0.0, np.pi))
+    x = np.radians([5.0, 0.0, 170, 180, 30, 200, 350])
+    assert ax.outside(x).tolist() == [False, False, False, False, False, True, True]
+    assert ax.fractional_index(x).tolist() == pytest.approx([0, 0, 5, 5, 0.5, 5, 0])
+
+
+def test_bilateral_spherical_grid():
+    """phi_d_fold = "bilateral": one φi node, φo nodes within [φi, φi + 180°]; a pair is folded
+    onto |φo − φi|; the fold is kept by a table file."""
+    g = grid_from_config({"type": "spherical", "theta_i_deg": [10, 50], "phi_i_deg": [0], "theta_o_deg": [20, 60],
+                          "phi_o_deg": [0, 90, 180], "phi_d_fold": "bilateral"})
+    assert g.attrs()["phi_d_fold"] == "bilateral"
+    wi, wo = sph_to_vec(np.radians(10), np.radians(100)), sph_to_vec(np.radians(20), np.radians(100 - 90))
+    c = g._coordinates(wi[None], wo[None])
+    assert np.degrees([c[1][0], c[3][0]]) == pytest.approx([0, 90])
+    for bad, key in (({"phi_i_deg": [0, 10]}, "phi_i"), ({"phi_o_deg": [0, 200]}, "phi_o"),
+                     ({"relative_to": "specular", "dtheta_o_deg": [0], "dphi_o_deg": [0], "theta_o_deg": None,
+                       "phi_o_deg": None}, "phi_d_fold")):
+        cfg = {"type": "spherical", "theta_i_deg": [10], "phi_i_deg": [0], "theta_o_deg": [20], "phi_o_deg": [0],
+               "phi_d_fold": "bilateral", **bad}
+        with pytest.raises(ParameterError) as e:
+            grid_from_config({k: v for k, v in cfg.items() if v is not None})
+        assert e.value.key.startswith(key)
+    with pytest.raises(ParameterError, match="anisotropic; a bilateral fold assumes isotropy"):
+        tabulate(models.create("microfacet", alpha_x=0.1, alpha_y=0.3), g, progress=False)

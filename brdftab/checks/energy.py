@@ -56,7 +56,8 @@ _SWEEP = (
 def sweep(ctx, theta_i_max, n_theta_i, n_phi_i):
     """Incidence angles and azimuths of the sweep [rad]. A table with incidence axes (a gonio
     table) is swept at its own incidence nodes (up to ``theta_i_max``): between them it holds
-    interpolations of its slices, not measured incidences."""
+    interpolations of its slices, not measured incidences (and θi = 0 when its domain reaches
+    it before the first node)."""
     theta = np.linspace(0.0, theta_i_max, n_theta_i)
     b = ctx.brdf
     phi = np.array([0.0]) if b.isotropic else np.arange(n_phi_i) * (2 * np.pi / n_phi_i)
@@ -65,6 +66,10 @@ def sweep(ctx, theta_i_max, n_theta_i, n_phi_i):
         ax = grid.axes[grid.dims.index("theta_i")]
         nodes = ax.values[ax.values <= theta_i_max + 1e-12]
         theta = nodes if nodes.size else ax.values[:1]
+        if ax.domain[0] <= 1e-12 < theta[0]:
+            # cell-centred nodes (an MDL .mbsdf table): the domain reaches normal incidence,
+            # where the table holds its first incidence
+            theta = np.concatenate([[0.0], theta])
         pax = grid.axes[grid.dims.index("phi_i")]
         if not b.isotropic:
             phi = np.asarray(pax.values, float)

@@ -148,7 +148,10 @@ def _node_pairs_spherical(table, v):
     if table.isotropic:
         # f(θi, φi_b, θo, φo_d) = f(θo, φi_0, θi, φi_b − φo_d + φi_0)
         jb = np.zeros((len(a_pi), len(a_po)), int)
-        jd = match_axis(a_po, (a_pi.values[:, None] - a_po.values[None, :] + a_pi.values[0]).ravel())
+        target = a_pi.values[:, None] - a_po.values[None, :] + a_pi.values[0]
+        if getattr(grid, "phi_d_fold", "none") == "bilateral":  # |φo − φi| folded into [0, π]
+            target = a_pi.values[0] + np.abs(np.mod(target - a_pi.values[0] + np.pi, 2 * np.pi) - np.pi)
+        jd = match_axis(a_po, target.ravel())
         jd = jd.reshape(len(a_pi), len(a_po))
     else:
         jb = np.broadcast_to(match_axis(a_pi, a_po.values)[None, :], (len(a_pi), len(a_po)))

@@ -133,6 +133,9 @@ class Isotropy(_Pairwise):
                 return self._nodes(ctx, _rows(ctx, mean, rusinkiewicz_node_weights), max_relative, weighted,
                                    passed, note)
             a_ti, a_pi, a_to, a_po = grid.axes
+            if grid.phi_d_fold == "bilateral":
+                return self.outcome(True, 0.0, max_relative, "isotropic by construction (the table holds "
+                                    "|phi_o - phi_i| only: phi_d_fold = 'bilateral')", mode="construction")
             if len(a_pi) == 1:
                 # nothing to compare: a check that measures nothing is skipped, not passed
                 return self.skip("one φi node: isotropy cannot be measured (the table is rotated about the normal "
@@ -193,6 +196,9 @@ class Bilateral(_Pairwise):
                     for key, v in data_blocks(ctx):
                         yield phi_d_pairs(grid, v, j, key)
                 return self._nodes(ctx, rows, max_relative, weighted)
+            if grid.phi_d_fold == "bilateral":
+                return self.outcome(True, 0.0, max_relative, "symmetric by construction (phi_d_fold = 'bilateral')",
+                                    mode="construction")
             a_ti, a_pi, a_to, a_po = grid.axes
             if grid.relative_to == "specular":
                 j = np.broadcast_to(match_axis(a_po, -a_po.values)[None, :], (len(a_pi), len(a_po)))

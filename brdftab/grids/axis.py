@@ -126,11 +126,12 @@ class Axis:
         return np.sqrt(np.maximum(x, 0.0) / HALF_PI) if self.warp == "sqrt" else x
 
     def _reduced(self, x):
-        """Angles of a wrapped axis reduced into [v0, v0 + wrap)."""
+        """Angles of a wrapped axis reduced into [lo, lo + wrap), lo the domain's low end (the
+        first node, or below it when the domain reaches past the nodes: cell-centred nodes)."""
         if self.wrap is None or self.period is not None:
             return x
-        v0 = self.values[0]
-        return v0 + np.mod(x - v0, self.wrap)
+        lo = self.domain[0]
+        return lo + np.mod(x - lo, self.wrap)
 
     def outside(self, x):
         """True where coordinate ``x`` lies outside this axis' domain."""

@@ -4,6 +4,13 @@ With ``relative_to = "specular"`` the outgoing axes are ``dtheta_o`` and ``dphi_
 θo = θi + Δθo and φo = φi + π + Δφo (zoomed grids around the mirror direction). Azimuth axes
 that go round the circle are periodic; others cover only their listed arc (queries outside
 it are outside the table's domain).
+
+``phi_d_fold = "bilateral"`` declares an isotropic table with mirror symmetry about the plane of
+incidence: f depends on φo − φi only through |φo − φi| folded into [0, π] (the symmetry of
+Rusinkiewicz's ``bilateral`` fold, φd ≡ −φd, for an isotropic BRDF). Such a grid has one φi node
+and its φo nodes lie in [φi, φi + π]; a pair is rotated about the normal onto the φi node and
+its azimuth difference folded into that half circle. This is the layout of an NVIDIA MDL
+``.mbsdf`` file (θi × θo × Δφ, cell-centred).
 """
 
 from __future__ import annotations
@@ -18,6 +25,9 @@ from .axis import HALF_PI, TWO_PI, Axis, check_range
 from .base import Grid, choice_attr, read_coordinate, register, unravel4
 
 __all__ = ["SphericalGrid"]
+
+#: φ folds a spherical grid declares (``phi_d_fold``): none, or mirror symmetry of an isotropic BRDF.
+FOLDS = ("none", "bilateral")
 
 
 def _angles(name, doc, used_when=""):
@@ -41,13 +51,20 @@ class SphericalGrid(Grid):
         _angles("phi_o", "Outgoing azimuths.", "relative_to = 'none'"),
         _angles("dtheta_o", "theta_o - theta_i.", "relative_to = 'specular'"),
         _angles("dphi_o", "phi_o - (phi_i + 180 deg).", "relative_to = 'specular'"),
+        Param("phi_d_fold", "choice", "'bilateral': isotropic and mirror-symmetric, f depends on |phi_o - phi_i| "
+              "folded into [0, 180] deg (one phi_i node, phi_o nodes in [phi_i, phi_i + 180] deg).",
+              default="none", choices=FOLDS),
     )
 
-    def __init__(self, theta_i, phi_i, theta_o, phi_o, *, relative_to="none", domains=None):
+    def __init__(self, theta_i, phi_i, theta_o, phi_o, *, relative_to="none", phi_d_fold="none", domains=None):
         if relative_to not in ("none", "specular"):
             raise ParameterError("relative_to", f"expected 'none' or 'specular', got {relative_to!r}")
+        if phi_d_fold not in FOLDS:
+            raise ParameterError("phi_d_fold", f"expected 'none' or 'bilateral' on a spherical grid, got "
+                                 f"{phi_d_fold!r}")
         domains = domains or {}
         self.relative_to = relative_to
+        self.phi_d_fold = phi_d_fold
         rel = relative_to == "specular"
         ti = np.asarray(theta_i, float)
         check_range("theta_i", ti, 0.0, HALF_PI, closed=True)
@@ -68,10 +85,25 @@ class SphericalGrid(Grid):
             _phi_axis(o_names[1], phi_o, centred=rel, domain=domains.get(o_names[1])),
         )
         self._trig = [(np.cos(a.values), np.sin(a.values)) for a in self.axes]
+        if phi_d_fold == "bilateral":
+            self._check_bilateral()
+
+    def _check_bilateral(self):
+        if self.relative_to != "none":
+            raise ParameterError("phi_d_fold", "a bilateral fold needs absolute outgoing angles (relative_to = 'none')")
+        a_pi, a_po = self.axes[1], self.axes[3]
+        if len(a_pi) != 1:
+            raise ParameterError("phi_i", f"a bilateral fold holds phi_o - phi_i of an isotropic BRDF: one phi_i node, "
+                                 f"not {len(a_pi)}")
+        p0 = a_pi.values[0]
+        if a_po.values[0] < p0 - 1e-12 or a_po.values[-1] > p0 + np.pi + 1e-12:
+            raise ParameterError("phi_o", f"with a bilateral fold the phi_o nodes lie in [phi_i, phi_i + 180] degrees "
+                                 f"([{np.degrees(p0):g}, {np.degrees(p0) + 180:g}]), got {np.degrees(a_po.values[0]):g}"
+                                 f" .. {np.degrees(a_po.values[-1]):g}")
 
     def attrs(self) -> dict:
         return {"parameterization": "spherical", "grid": "spherical", "relative_to": self.relative_to,
-                "sample_position": "explicit", "phi_d_fold": "none"}
+                "sample_position": "explicit", "phi_d_fold": self.phi_d_fold}
 
     def _directions(self, idx):
         i_ti, i_pi, i_to, i_po = idx
@@ -104,7 +136,8 @@ class SphericalGrid(Grid):
     def _coordinates(self, wi, wo, isotropic: bool = False):
         ti, pi_ = vec_to_sph(wi)
         to, po = vec_to_sph(wo)
-        if isotropic:
+        bilateral = self.phi_d_fold == "bilateral"
+        if isotropic or bilateral:
             # An isotropic BRDF depends on φo − φi only: rotate pairs whose φi the table does
             # not cover onto its first φi node.
             ax = self.axes[1]
@@ -112,6 +145,8 @@ class SphericalGrid(Grid):
             shift = np.where(off, ax.values[0] - pi_, 0.0)
             pi_ = pi_ + shift
             po = po + shift
+        if bilateral:  # mirror symmetry: |φo − φi| folded into [0, π]
+            po = pi_ + np.abs(np.mod(po - pi_ + np.pi, TWO_PI) - np.pi)
         if self.relative_to == "specular":
             to = to - ti
             po = np.mod(po - pi_, TWO_PI) - np.pi  # wrap(φo − φi − π) into [−π, π)
@@ -132,11 +167,12 @@ class SphericalGrid(Grid):
                 raise ParameterError(f"{ax}_deg", "missing: a spherical grid needs angles in degrees for "
                                      f"theta_i, phi_i, {o_names[0]}, {o_names[1]}")
             vals.append(v[ax])
-        return cls(*vals, relative_to=rel)
+        return cls(*vals, relative_to=rel, phi_d_fold=v.get("phi_d_fold", "none"))
 
     @classmethod
     def from_dataset(cls, ds, attrs):
         rel = choice_attr(attrs, "relative_to", ("none", "specular"), default="none") == "specular"
+        fold = choice_attr(attrs, "phi_d_fold", FOLDS, default="none")
         names = ("theta_i", "phi_i", "dtheta_o" if rel else "theta_o", "dphi_o" if rel else "phi_o")
         vals, domains = [], {}
         for n in names:
@@ -145,7 +181,7 @@ class SphericalGrid(Grid):
             if domain is not None:
                 domains[n] = domain
         try:
-            return cls(*vals, relative_to="specular" if rel else "none", domains=domains)
+            return cls(*vals, relative_to="specular" if rel else "none", phi_d_fold=fold, domains=domains)
         except ParameterError as exc:
             raise ParameterError(exc.key, f"coordinate '{exc.key}': {exc.detail}") from None
 
