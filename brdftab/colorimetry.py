@@ -41,6 +41,21 @@ __all__ = ["Colorimetry", "DEFAULT", "OBSERVERS", "COLOURSPACES", "spectral_to_x
            "to_colour", "PARAMS", "from_options", "seen_as_written", "XYZView", "rgb_to_xyz", "convert_for_writer",
            "from_recorded"]
 
+def _colour():
+    """colour-science, imported keeping numpy's print options (its import switches the whole
+    process to numpy 1.13's legacy printing)."""
+    import sys
+
+    if "colour" not in sys.modules:
+        options = np.get_printoptions()
+        import colour
+
+        np.set_printoptions(**options)
+    import colour
+
+    return colour
+
+
 #: Observers by their short names (the long names of colour-science are accepted too).
 OBSERVERS = {
     "cie1931-2": "CIE 1931 2 Degree Standard Observer",
@@ -124,7 +139,7 @@ class Colorimetry:
     colourspace: str = "sRGB"
 
     def __post_init__(self):
-        import colour
+        colour = _colour()
 
         obs = OBSERVERS.get(self.observer, self.observer)
         if obs not in OBSERVERS.values():
@@ -162,7 +177,7 @@ class Colorimetry:
 
     def attrs(self) -> dict:
         """The conversion as metadata (netCDF/EXR attributes)."""
-        import colour
+        colour = _colour()
 
         return {
             "colour_illuminant": self.illuminant,
@@ -186,7 +201,7 @@ object.__setattr__(DEFAULT, "colourspace", "sRGB")
 
 @functools.lru_cache(maxsize=64)
 def _white(illuminant, observer):
-    import colour
+    colour = _colour()
 
     ccs = colour.CCS_ILLUMINANTS.get(observer, {})
     if illuminant in ccs:
@@ -198,7 +213,7 @@ def _white(illuminant, observer):
 
 
 def _xyz_to_space(xyz, illuminant, observer, colourspace):
-    import colour
+    colour = _colour()
 
     if colourspace == "XYZ":
         return np.asarray(xyz, float)
@@ -209,7 +224,7 @@ def _xyz_to_space(xyz, illuminant, observer, colourspace):
 @functools.lru_cache(maxsize=64)
 def _matrix(lam, illuminant, observer, colourspace):
     """colour-science's conversion of the L unit spectra (one per wavelength): the rows of M."""
-    import colour
+    colour = _colour()
 
     lam = np.asarray(lam, float)
     basis = np.eye(lam.size)
@@ -233,7 +248,7 @@ def spectral_distribution(values, wavelengths):
     """A colour-science ``SpectralDistribution`` of one spectrum, as this module converts it:
     colour-science's default interpolator, or linear interpolation for spectra of fewer than six
     samples (its default, Sprague's, needs six)."""
-    import colour
+    colour = _colour()
 
     lam = np.asarray(wavelengths, float)
     if lam.size < 6:
@@ -355,7 +370,7 @@ class XYZView(BRDF):
 def rgb_to_xyz(values, channels=("R", "G", "B")) -> np.ndarray:
     """``values[..., 3]`` in linear sRGB (or ``[..., 1]`` grey, as (f, f, f)) to CIE XYZ by
     colour-science's ``RGB_to_XYZ`` (sRGB colourspace, its D65 white, no transfer function)."""
-    import colour
+    colour = _colour()
 
     v = np.asarray(values, float)
     if tuple(channels) == ("mono",):

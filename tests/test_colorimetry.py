@@ -158,3 +158,14 @@ path = "al.binary"
     ref = colour_science(model.eval(wi, wo, LAM31), LAM31)
     got = np.asarray(back.eval(wi, wo))
     assert np.median(np.abs(got - ref) / ref) < 0.01
+
+
+def test_converting_keeps_numpy_print_options():
+    """colour-science switches numpy to its 1.13 legacy printing when imported; brdftab imports
+    it keeping the caller's options."""
+    code = ("import numpy as np\nfrom brdftab.colorimetry import spectral_to_rgb\n"
+            "spectral_to_rgb([0.2, 0.4, 0.6], [450.0, 550.0, 650.0])\nimport colour\n"
+            "print(repr(np.array([0.5])), np.get_printoptions()['legacy'])")
+    run = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert run.returncode == 0, run.stderr
+    assert run.stdout.split() == ["array([0.5])", "False"]
