@@ -511,7 +511,7 @@ def _stream_copy(table, fmt, source, target, options, overwrite, inputs, checks,
     with atomic_path(target, overwrite=overwrite, inputs=inputs) as tmp:
         with fmt.stream(template, tmp, **options) as writer:
             with write_progress(target.name, progress, _delay(started)):
-                for key, block in table.iter_blocks(max(1 << 20, memory_budget() // 16), align=writer.chunks):
+                for key, block in table.iter_blocks(max(1 << 16, memory_budget() // 16), align=writer.chunks):
                     with held_signals(writing=target.name):
                         writer.write(key, block)
                     checkpoint()
