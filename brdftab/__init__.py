@@ -20,12 +20,12 @@ import importlib
 
 from ._version import __version__
 
-__all__ = ["__version__", "BRDF", "BrdftabError", "Table", "from_spec", "geometry", "grids", "load_spec", "models",
+__all__ = ["__version__", "BRDF", "BrdftabError", "Table", "fit", "from_spec", "geometry", "grids", "load_spec", "models",
            "open", "save", "tabulate"]
 
 #: Names imported on first use (PEP 562): ``import brdftab`` stays light, so the command line
 #: installs its signal handlers before numpy, xarray and netCDF4 load.
-_LAZY = {"BRDF": ".brdf", "BrdftabError": ".errors", "Table": ".table", "tabulate": ".table"}
+_LAZY = {"BRDF": ".brdf", "BrdftabError": ".errors", "Table": ".table", "tabulate": ".table", "fit": ".fitting"}
 
 
 def __getattr__(name):

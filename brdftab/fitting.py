@@ -1,0 +1,654 @@
+"""Fit a model's parameters to a table: from measured (or tabulated) data to a spec.
+
+``brdftab.fit(table, model, free=["alpha", "n"])`` adjusts the named parameters of ``model``
+so that it reproduces ``table`` at the table's own nodes (no interpolation), and returns a
+:class:`FitResult`: the fitted model, its parameters with uncertainties and correlations,
+the residual figures, and a spec (``[model]`` the fitted model, ``[grid]`` the table's grid)
+whose tabulation reproduces the table. ``brdftab fit`` is the same on the command line.
+
+Keys
+    Parameters are named by their spec keys (``alpha``, ``p3_deg``: angles in degrees, as in a
+    spec file); the terms of a ``sum`` are numbered from 0, as in a ``[sweep]``:
+    ``terms.1.alpha`` (or ``terms[1].alpha``). A key whose value is a list (one number per
+    channel) frees every element (``terms.0.albedo[0]``, ...).
+
+Samples
+    Every node of the table where both directions are above the horizon, θi and θo are at
+    most ``max_theta_deg`` (default 80°: near grazing, measurements are least reliable and
+    f·cos is small while f itself can be large) and the value is finite and not declared
+    missing. Measured tables keep their own noise (negative values included: the log metric
+    floors them).
+
+Metrics
+    ``log`` (default): r = ln max(f, floor) − ln max(t, floor), floor = 10⁻³ × the median of
+    the positive samples; every order of magnitude weighs alike, as in the papers'
+    log-scale comparisons of measured and fitted curves, so a specular peak does not drown
+    the diffuse and grazing parts (and a relative noise is uniform noise). ``cos``:
+    r = (f − t) cosθi cosθo, the error in reflected radiance (what energy and rendering
+    judge); it is dominated by the brightest samples. ``residual`` is the rms of r over the
+    samples, comparable between fits of the same table with the same metric.
+
+Search
+    :func:`scipy.optimize.least_squares` (trust-region reflective, ``soft_l1`` loss with
+    scale ``f_scale``) within bounds: each parameter's declared range (an exclusive minimum
+    nudged up by 10⁻⁹ relative), a range open at one end is closed at the start value ± 10 ×
+    max(|start|, 1) (documented practical bounds; give ``bounds`` to choose others). These
+    problems are not convex: by default ``starts`` = 16 starts — the start value and points of
+    a scrambled Sobol sequence (seeded) spread over the bounds — each run on a random subset
+    of at most ``search_samples`` (20 000) nodes; the best is refined on at most
+    ``refine_samples`` (200 000) nodes, on which the figures are computed.
+
+Uncertainties
+    From the Jacobian J of the residuals at the solution: covariance s² (JᵀJ)⁻¹ with
+    s² = Σ r² / (m − p) (m residuals, p free parameters); one standard deviation per
+    parameter, and the correlation matrix. They describe the fit's statistics (noise that
+    is independent between samples), not a model's systematic mismatch.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .errors import BrdftabError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+__all__ = ["fit", "FitResult", "model_table", "grid_table", "METRICS", "MAX_THETA_DEG"]
+
+METRICS = ("log", "cos")
+#: Default cut-off of the samples: θi and θo at most this many degrees.
+MAX_THETA_DEG = 80.0
+#: The log metric's floor relative to the median of the positive samples.
+LOG_FLOOR = 1e-3
+DEFAULT_STARTS = 16
+SEARCH_SAMPLES = 20_000
+REFINE_SAMPLES = 200_000
+#: Tolerance (ftol, xtol, gtol) of the search from each start; the refine uses 1e-8.
+SEARCH_TOL = 1e-5
+#: An open end of a range is closed at start ± OPEN_SPAN × max(|start|, 1).
+OPEN_SPAN = 10.0
+_BIN_DEG = 10.0
+
+
+# --- models as spec tables ----------------------------------------------------------------
+def model_table(model) -> dict:
+    """The ``[model]`` table of a spec that builds ``model`` (angles in degrees under ``_deg``
+    keys, the terms of a combinator as nested tables)."""
+    from . import models
+
+    cls = models.MODELS.get(model.name)
+    declared = {p.name: p for p in cls.params}
+    out = {"name": model.name}
+    for key, value in model.parameters.items():
+        p = declared[key]
+        if p.kind == "brdf":
+            out[p.spec_key] = model_table(model._values[p.name])
+        elif p.kind == "brdfs":
+            out[p.spec_key] = [model_table(m) for m in model._values[p.name]]
+        elif p.angle and isinstance(value, (int, float)) and not isinstance(value, bool):
+            out[p.spec_key] = math.degrees(value)
+        else:
+            out[p.spec_key] = value
+    return out
+
+
+def _params_of(table: dict) -> dict:
+    from . import models
+
+    return {p.spec_key: p for p in models.MODELS.get(table["name"]).params}
+
+
+def _numeric(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def free_keys(table: dict, prefix: str = "") -> list:
+    """The keys of ``table`` (a ``[model]`` table) that hold numbers: what ``free`` may name."""
+    out = []
+    params = _params_of(table)
+    for key, value in table.items():
+        if key == "name":
+            continue
+        p = params.get(key)
+        if p is not None and p.kind == "brdfs":
+            for i, sub in enumerate(value):
+                out += free_keys(sub, f"{prefix}{key}.{i}.")
+        elif p is not None and p.kind == "brdf":
+            out += free_keys(value, f"{prefix}{key}.")
+        elif _numeric(value) or (isinstance(value, list) and value and all(map(_numeric, value))):
+            out.append(prefix + key)
+    out += [prefix + k for k, p in params.items() if k not in table and p.kind in _REAL_KINDS]
+    return out
+
+
+_REAL_KINDS = ("float", "channel", "floats")
+
+
+def _add_declared(table: dict, key: str) -> bool:
+    """Put a start value for ``key`` into ``table`` when the model declares it but the table
+    does not hold it: its default, else the centre of its declared range. False when ``key``
+    names no declared real parameter, or it has no start (an open range and no default)."""
+    from .params import REQUIRED
+    from .sweep import parse_key
+
+    parts = parse_key(key)
+    if not parts or not isinstance(parts[-1], str):
+        return False
+    head = ".".join(str(x) for x in parts[:-1])
+    node = table if not head else _walk(table, head)
+    node = node if not head or node is None else node[3]
+    if not isinstance(node, dict) or "name" not in node:
+        return False
+    p = _params_of(node).get(parts[-1])
+    if p is None:
+        return False
+    if p.kind not in _REAL_KINDS:
+        raise BrdftabError(f"--free: '{key}' is not a number (a {p.kind} parameter: {p.expected()}); only "
+                           "real-valued parameters can be fitted")
+    if _numeric(p.default) and p.default is not REQUIRED:
+        node[parts[-1]] = math.degrees(p.default) if p.angle else p.default
+        return True
+    lower, upper = _declared_bounds(p, 0.0)
+    if p.minimum is None or p.maximum is None:
+        raise BrdftabError(f"--free: {key} has no start value (no default and an open range): give one with "
+                           f"--param {key}=VALUE")
+    node[parts[-1]] = 0.5 * (lower + upper)
+    return True
+
+
+def _walk(table: dict, key: str):
+    """``(container, index, Param, value)`` of ``key`` in a ``[model]`` table; None when it
+    names nothing."""
+    from .sweep import parse_key
+
+    parts = parse_key(key)
+    node, param = table, None
+    for i, part in enumerate(parts):
+        last = i == len(parts) - 1
+        if isinstance(node, dict) and isinstance(part, str) and "name" in node:
+            param = _params_of(node).get(part)
+            if param is None or part not in node:
+                return None
+        elif isinstance(node, list) and isinstance(part, int) and part < len(node):
+            pass
+        else:
+            return None
+        if last:
+            return node, part, param, node[part]
+        node = node[part]
+    return None
+
+
+def _set(table: dict, key: str, value) -> None:
+    from .sweep import parse_key
+
+    parts = parse_key(key)
+    node = table
+    for part in parts[:-1]:
+        node = node[part]
+    node[parts[-1]] = value
+
+
+def _parse_value(text: str):
+    """A ``--param`` value as TOML reads it (a number, a list, a string in quotes); bare text
+    is a string."""
+    try:
+        return tomllib.loads(f"v = {text}")["v"]
+    except tomllib.TOMLDecodeError:
+        return text
+
+
+# --- grids as spec tables ----------------------------------------------------------------
+def grid_table(grid) -> dict:
+    """The ``[grid]`` table of a spec whose grid equals ``grid`` (node for node)."""
+    from .grids import grid_from_config
+
+    if not hasattr(grid, "attrs") or not hasattr(grid, "axes") or not hasattr(grid, "directions"):
+        raise BrdftabError(f"the table's sample layout ({grid.describe()}) has no [grid] form; fit a table on a "
+                           "brdftab grid (convert it first)")
+    attrs = grid.attrs()
+    candidates = []
+    if attrs.get("parameterization", "").startswith("rusinkiewicz"):
+        pos = attrs.get("sample_position")
+        if attrs.get("grid") == "merl":
+            candidates.append({"type": "merl", "sample_position": pos})
+        base = {"type": "rusinkiewicz", "phi_d_fold": attrs["phi_d_fold"]}
+        if grid.anisotropic:
+            base["anisotropic"] = True
+        if pos != "explicit" and attrs["theta_h_spacing"] != "explicit":
+            counts = dict(base, theta_h_spacing=attrs["theta_h_spacing"], sample_position=pos,
+                          **{f"n_{a.name}": len(a) for a in grid.axes})
+            candidates.append(counts)
+        candidates.append(dict(base, **{f"{a.name}_deg": [math.degrees(x) for x in a.values] for a in grid.axes}))
+    else:
+        cfg = {"type": attrs.get("grid", "spherical")}
+        if attrs.get("relative_to", "none") != "none":
+            cfg["relative_to"] = attrs["relative_to"]
+        cfg.update({f"{a.name}_deg": [math.degrees(x) for x in a.values] for a in grid.axes})
+        candidates.append(cfg)
+    for cfg in candidates:
+        try:
+            g = grid_from_config(cfg)
+        except BrdftabError:
+            continue
+        if g.shape == grid.shape and all(np.allclose(a.values, b.values, rtol=0, atol=1e-12)
+                                         for a, b in zip(g.axes, grid.axes)):
+            return cfg
+    raise BrdftabError(f"the table's grid ({grid.describe()}) has no [grid] form that reproduces its nodes")
+
+
+# --- the samples ---------------------------------------------------------------------------
+@dataclass
+class _Samples:
+    wi: np.ndarray
+    wo: np.ndarray
+    target: np.ndarray  # [m, C], NaN where not used
+    cos: np.ndarray      # cosθi cosθo [m]
+    theta_i: np.ndarray  # [m] rad
+
+
+def _valid_nodes(table, max_theta_deg: float):
+    """Flat indices of the table's usable nodes and the count of each reason a node is not."""
+    grid = table.grid
+    if not hasattr(grid, "directions_into"):
+        raise BrdftabError(f"the table's sample layout ({grid.describe()}) is not a brdftab grid; convert the "
+                           "table to one (brdftab convert) to fit it")
+    c_min = math.cos(math.radians(max_theta_deg))
+    above = grid.node_above_horizon().reshape(-1)
+    keep = np.zeros(grid.size, bool)
+    step = 1 << 18
+    wi = np.empty((step, 3))
+    wo = np.empty((step, 3))
+    for s in range(0, grid.size, step):
+        e = min(s + step, grid.size)
+        grid.directions_into(s, e, wi[:e - s], wo[:e - s])
+        keep[s:e] = (wi[:e - s, 2] >= c_min) & (wo[:e - s, 2] >= c_min)
+    keep &= above
+    values = table.values.reshape(grid.size, -1)
+    finite = np.isfinite(values)
+    miss = table.missing
+    if miss is not None:
+        finite &= ~miss.reshape(grid.size, -1)
+    keep &= finite.any(axis=1)
+    return np.flatnonzero(keep)
+
+
+def _samples(table, nodes) -> _Samples:
+    grid = table.grid
+    wi, wo = grid._directions(np.unravel_index(nodes, grid.shape))
+    wi = np.ascontiguousarray(wi, float)
+    wo = np.ascontiguousarray(wo, float)
+    target = np.array(table.values.reshape(grid.size, -1)[nodes], float)
+    miss = table.missing
+    if miss is not None:
+        target[miss.reshape(grid.size, -1)[nodes]] = np.nan
+    target[~np.isfinite(target)] = np.nan
+    return _Samples(wi, wo, target, wi[:, 2] * wo[:, 2], np.arccos(np.clip(wi[:, 2], -1.0, 1.0)))
+
+
+# --- the result ----------------------------------------------------------------------------
+@dataclass
+class FitResult:
+    """What :func:`fit` found. ``parameters``, ``uncertainties`` (one standard deviation) by
+    free key in spec units; ``correlations[i][j]`` between ``free[i]`` and ``free[j]``;
+    ``residual`` the rms of the metric over the refine samples; ``residual_by_theta_i`` the
+    same per 10° bin of θi (``[θ lo, θ hi, rms, samples]``); ``albedo`` of table and fit at a
+    few θi."""
+
+    model: object
+    model_table: dict
+    grid_table: dict
+    free: list
+    parameters: dict
+    uncertainties: dict
+    correlations: list
+    metric: str
+    residual: float
+    residual_by_theta_i: list
+    samples: int
+    starts: int
+    start_results: list = field(default_factory=list)
+    albedo: dict = field(default_factory=dict)
+    bounds: dict = field(default_factory=dict)
+
+    def to_json(self) -> dict:
+        return {"model": self.model_table, "free": list(self.free), "parameters": self.parameters,
+                "uncertainties": self.uncertainties, "correlations": self.correlations, "metric": self.metric,
+                "residual": self.residual, "residual_by_theta_i": self.residual_by_theta_i,
+                "samples": self.samples, "starts": self.starts, "start_residuals": self.start_results,
+                "bounds": {k: list(v) for k, v in self.bounds.items()}, "albedo": self.albedo}
+
+    def spec_text(self, output: str, description: str = "") -> str:
+        """A spec file (TOML) of the fitted model on the table's grid writing ``output``."""
+        lines = []
+        if description:
+            lines.append(f"description = {json.dumps(description, ensure_ascii=False)}")
+            lines.append("")
+        _toml_table(lines, "model", self.model_table)
+        lines.append("")
+        _toml_table(lines, "grid", self.grid_table)
+        lines += ["", "[[output]]", f"path = {json.dumps(output, ensure_ascii=False)}", ""]
+        return "\n".join(lines)
+
+
+def _toml_scalar(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            raise BrdftabError(f"cannot write the non-finite value {v} to a spec")
+        return repr(v)
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_scalar(x) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {_toml_scalar(x)}" for k, x in v.items()) + "}"
+    return str(v)
+
+
+def _is_table(v) -> bool:
+    return isinstance(v, dict) and "name" in v
+
+
+def _toml_table(lines, header, table, array=False) -> None:
+    lines.append(f"[[{header}]]" if array else f"[{header}]")
+    subs = []
+    for k, v in table.items():
+        if _is_table(v) or (isinstance(v, list) and v and all(map(_is_table, v))):
+            subs.append((k, v))
+        else:
+            lines.append(f"{k} = {_toml_scalar(v)}")
+    for k, v in subs:
+        for item in (v if isinstance(v, list) else [v]):
+            _toml_table(lines, f"{header}.{k}", item, array=isinstance(v, list))
+
+
+# --- the fit ---------------------------------------------------------------------------------
+def _start_model(model, params, where):
+    """``(model table, folder for file parameters)`` of ``model``: a BRDF, a model name, a
+    ``[model]`` table (dict) or a TOML file with a ``[model]`` table."""
+    from . import models
+    from .brdf import BRDF
+    from .spec import read_spec
+
+    folder = Path.cwd()
+    if isinstance(model, BRDF):
+        table = model_table(model)
+    elif isinstance(model, dict):
+        table = json.loads(json.dumps(model))
+    elif isinstance(model, (str, Path)) and (str(model).endswith(".toml") or Path(model).is_file()):
+        raw, _ = read_spec(Path(model))
+        if not isinstance(raw.get("model"), dict):
+            raise BrdftabError(f"{model}: no [model] table")
+        table, folder = raw["model"], Path(model).parent
+    elif isinstance(model, str):
+        table = {"name": model}
+        models.get(model)  # an unknown name: the registry's one wording
+    else:
+        raise BrdftabError(f"expected a model, a model name or a spec file, got {type(model).__name__}")
+    for key, value in (params or {}).items():
+        if _walk(table, key) is None:
+            if "." not in key and "[" not in key:  # a key the model declares but the table does not hold yet
+                declared = _params_of(table)
+                if key in declared:
+                    table[key] = value
+                    continue
+                raise BrdftabError(f"{where}: unknown parameter '{key}' for model '{table['name']}'"
+                                   f"{_suggest(key, list(declared))}; valid: {', '.join(declared)}")
+            raise BrdftabError(f"{where}: '{key}' names no parameter of the model{_suggest(key, free_keys(table))}")
+        _set(table, key, value)
+    return table, folder
+
+
+def _suggest(word, choices) -> str:
+    from .params import suggest
+
+    return suggest(word, choices)
+
+
+def _build(table, folder):
+    from .errors import SpecError
+    from .spec import build_model
+
+    where = folder / "<fit>"
+    try:
+        return build_model(table, "model", where)
+    except SpecError as exc:
+        raise BrdftabError(str(exc).replace(f"{where}: ", "the model: ", 1)) from None
+
+
+def _free_vector(table, free, bounds):
+    """Expanded free keys, start vector, lower and upper bounds (spec units)."""
+    keys, x0, lo, hi = [], [], [], []
+    valid = free_keys(table)
+    for key in free:
+        found = _walk(table, key)
+        if found is None and _add_declared(table, key):
+            found = _walk(table, key)
+        if found is None:
+            raise BrdftabError(f"--free: unknown key '{key}'{_suggest(key, valid)}; free keys of this model: "
+                               f"{', '.join(valid) or 'none'}")
+        _, _, p, value = found
+        if isinstance(value, list) and value and all(map(_numeric, value)):
+            items = [(f"{key}[{i}]", v) for i, v in enumerate(value)]
+        elif _numeric(value):
+            items = [(key, value)]
+        else:
+            raise BrdftabError(f"--free: '{key}' is not a number (it is {json.dumps(value)}); only numeric "
+                               f"parameters can be fitted")
+        if p is not None and p.kind not in ("float", "channel", "floats"):
+            raise BrdftabError(f"--free: '{key}' is a {p.kind} parameter; only real-valued parameters can be fitted")
+        for k, v in items:
+            lower, upper = _declared_bounds(p, float(v))
+            if k in (bounds or {}) or key in (bounds or {}):
+                lower, upper = (float(b) for b in (bounds.get(k) or bounds[key]))
+            if not lower <= v <= upper:
+                raise BrdftabError(f"--free: the start {k} = {v:g} is outside its bounds [{lower:g}, {upper:g}]")
+            if not lower < upper:
+                raise BrdftabError(f"--free: the bounds of {k} are empty ([{lower:g}, {upper:g}])")
+            keys.append(k)
+            x0.append(float(v))
+            lo.append(lower)
+            hi.append(upper)
+    dup = {k for k in keys if keys.count(k) > 1}
+    if dup:
+        raise BrdftabError(f"--free: {', '.join(sorted(dup))} named twice")
+    return keys, np.array(x0), np.array(lo), np.array(hi)
+
+
+def _declared_bounds(p, start: float):
+    """The bounds of a free parameter in spec units: its declared range (degrees for angles),
+    an open end closed at start ± OPEN_SPAN·max(|start|, 1)."""
+    conv = math.degrees if (p is not None and p.angle) else float
+    span = OPEN_SPAN * max(abs(start), 1.0)
+    lower = conv(p.minimum) if p is not None and p.minimum is not None else start - span
+    upper = conv(p.maximum) if p is not None and p.maximum is not None else start + span
+    if p is not None and p.minimum is not None and p.exclusive_minimum:
+        lower += 1e-9 * max(abs(lower), 1.0)
+    return float(lower), float(upper)
+
+
+def fit(table, model, free, *, params: dict | None = None, metric: str = "log", bounds: dict | None = None,
+        starts: int = DEFAULT_STARTS, max_theta_deg: float = MAX_THETA_DEG, search_samples: int = SEARCH_SAMPLES,
+        refine_samples: int = REFINE_SAMPLES, f_scale: float | None = None, seed: int = 0,
+        albedo: bool = True) -> FitResult:
+    """Fit the ``free`` parameters of ``model`` to ``table`` (a :class:`~brdftab.table.Table` or
+    a path). ``model``: a BRDF, a model name, a ``[model]`` table or a TOML file whose
+    ``[model]`` is the starting model; ``params`` sets keys of it (spec units); ``bounds``
+    ``{key: (lo, hi)}`` replaces a key's default bounds. See the module docstring for the
+    samples, metrics, search and uncertainties.
+
+    >>> import brdftab
+    >>> truth = brdftab.models.create("microfacet", alpha=0.2)
+    >>> grid = {"type": "rusinkiewicz", "n_theta_h": 24, "n_theta_d": 12, "n_phi_d": 12}
+    >>> table = brdftab.tabulate(truth, brdftab.grids.grid_from_config(grid))
+    >>> result = brdftab.fit(table, "microfacet", free=["alpha"], params={"alpha": 0.5}, starts=2)
+    >>> round(result.parameters["alpha"], 6)
+    0.2
+    """
+    from scipy.optimize import least_squares
+
+    if metric not in METRICS:
+        from .params import unknown
+
+        raise BrdftabError(unknown("metric", metric, METRICS))
+    if isinstance(table, (str, Path)):
+        from . import open as open_table
+
+        table = open_table(table)
+    if isinstance(free, str):
+        free = [k for k in free.split(",") if k]
+    if not free:
+        raise BrdftabError("--free: name at least one parameter to fit")
+    if not isinstance(starts, int) or starts < 1:
+        raise BrdftabError(f"starts: expected a whole number >= 1, got {starts!r}")
+    if not 0 < max_theta_deg <= 90:
+        raise BrdftabError(f"max_theta_deg: expected a number > 0 and <= 90, got {max_theta_deg!r}")
+    start_table, folder = _start_model(model, params, "--param")
+    keys, x0, lo, hi = _free_vector(start_table, free, bounds)
+    _build(start_table, folder)  # the start itself must be a valid model
+
+    nodes = _valid_nodes(table, max_theta_deg)
+    if nodes.size == 0:
+        raise BrdftabError(f"the table has no valid samples to fit (every node is missing, not finite, below the "
+                           f"horizon or beyond θ = {max_theta_deg:g}°)")
+    rng = np.random.default_rng(seed)
+    search_nodes = np.sort(rng.choice(nodes, min(nodes.size, search_samples), replace=False))
+    refine_nodes = np.sort(rng.choice(nodes, min(nodes.size, refine_samples), replace=False))
+    lam = table.wavelengths if table.spectral else None
+
+    positive = table.values.reshape(table.grid.size, -1)[nodes]
+    positive = positive[np.isfinite(positive) & (positive > 0)]
+    floor = LOG_FLOOR * float(np.median(positive)) if positive.size else 1e-12
+
+    def model_at(x):
+        t = json.loads(json.dumps(start_table))
+        for k, v in zip(keys, x):
+            _set(t, k, float(v))
+        return _build(t, folder), t
+
+    def residuals_of(s: _Samples):
+        mask = np.isfinite(s.target)
+        target = np.where(mask, s.target, 0.0)
+        if metric == "log":
+            t_log = np.log(np.maximum(target, floor))
+
+        def res(x):
+            m, _ = model_at(x)
+            f = m.eval(s.wi, s.wo, lam, assume_unit=True)
+            f = np.broadcast_to(f, target.shape)
+            if metric == "log":
+                r = np.log(np.maximum(f, floor)) - t_log
+            else:
+                r = (f - target) * s.cos[:, None]
+            r = np.where(mask, r, 0.0)
+            return r[mask]
+        return res, mask
+
+    scale = f_scale if f_scale is not None else (0.1 if metric == "log" else None)
+
+    def solve(res, x, tol=1e-8):
+        fs = scale
+        if fs is None:  # cos: the scale of the residuals at the start
+            r0 = res(x)
+            fs = max(float(np.median(np.abs(r0))), 1e-12)
+        return least_squares(res, x, bounds=(lo, hi), loss="soft_l1", f_scale=fs, x_scale="jac",
+                             method="trf", max_nfev=200 * (len(x) + 1), ftol=tol, xtol=tol, gtol=tol)
+
+    search = _samples(table, search_nodes)
+    res_search, _ = residuals_of(search)
+    points = [x0]
+    if starts > 1:
+        from scipy.stats import qmc
+
+        sobol = qmc.LatinHypercube(len(keys), seed=seed).random(starts - 1)
+        points += list(lo + sobol * (hi - lo))
+    runs = []
+    for x in points:
+        try:
+            r = solve(res_search, np.clip(x, lo, hi), SEARCH_TOL)
+        except BrdftabError:
+            continue  # a combination of values the model refuses (keys that constrain each other)
+        runs.append(r)
+    if not runs:
+        raise BrdftabError("no start gave a valid model")
+    runs.sort(key=lambda r: r.cost)
+    refine = _samples(table, refine_nodes)
+    res_refine, mask = residuals_of(refine)
+    best = solve(res_refine, runs[0].x)
+    x = best.x
+    r = res_refine(x)
+    m, n_par = r.size, len(x)
+    jac = best.jac
+    s2 = float(r @ r) / max(m - n_par, 1)
+    try:
+        cov = s2 * np.linalg.inv(jac.T @ jac)
+        sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = cov / np.outer(sd, sd)
+    except np.linalg.LinAlgError:
+        sd = np.full(n_par, np.inf)
+        corr = np.full((n_par, n_par), np.nan)
+    fitted, fitted_table = model_at(x)
+
+    # residual per θi bin (over the refine samples)
+    per_sample = np.zeros(mask.shape)
+    per_sample[mask] = r
+    by_theta = []
+    deg = np.degrees(refine.theta_i)
+    for b0 in np.arange(0.0, max_theta_deg, _BIN_DEG):
+        b1 = min(b0 + _BIN_DEG, max_theta_deg)
+        rows = (deg >= b0) & ((deg < b1) | ((b1 == max_theta_deg) & (deg <= b1)))
+        n = int(mask[rows].sum())
+        if n:
+            rms = float(np.sqrt(np.sum(per_sample[rows] ** 2) / n))
+            by_theta.append([float(b0), float(b1), rms, n])
+
+    result = FitResult(
+        model=fitted, model_table=fitted_table, grid_table=grid_table(table.grid), free=keys,
+        parameters={k: float(v) for k, v in zip(keys, x)},
+        uncertainties={k: float(v) for k, v in zip(keys, sd)},
+        correlations=[[None if not np.isfinite(c) else float(c) for c in row] for row in corr],
+        metric=metric, residual=float(np.sqrt(np.mean(r ** 2))), residual_by_theta_i=by_theta,
+        samples=int(refine_nodes.size), starts=len(points),
+        start_results=[float(np.sqrt(2 * q.cost / max(q.fun.size, 1))) for q in runs],
+        bounds={k: (float(a), float(b)) for k, a, b in zip(keys, lo, hi)})
+    if albedo:
+        result.albedo = _albedo(table, fitted, lam, max_theta_deg)
+    return result
+
+
+def _albedo(table, model, lam, max_theta_deg):
+    """Directional albedo of table and fit at θi = 0, 15, … up to the cut-off (per channel)."""
+    from .integrate import directional_albedo
+
+    theta = np.radians(np.arange(0.0, max_theta_deg + 1e-9, 15.0))
+    outside = getattr(table, "outside", None)
+    try:
+        if outside is not None:
+            table.outside = "nan"
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            a_t = directional_albedo(table, theta, 0.0, lam)
+            a_f = directional_albedo(model, theta, 0.0, lam)
+    finally:
+        if outside is not None:
+            table.outside = outside
+
+    def rows(a):
+        return [[None if not np.isfinite(v) else float(v) for v in row] for row in np.asarray(a).reshape(theta.size, -1)]
+    return {"theta_i_deg": [float(t) for t in np.degrees(theta)], "table": rows(a_t), "fit": rows(a_f)}
