@@ -97,7 +97,7 @@ def test_bitterling_fit_recovered_from_the_bounds_centres():
     free = list(BITTERLING)
     one = brdftab.fit(table, "cook-torrance-alpha-theta", free=free, params=start, starts=1, albedo=False)
     off = max(abs(one.parameters[k] / v - 1) for k, v in BITTERLING.items())
-    assert off > 0.5  # a single start from the centres misses: the problem is not convex
+    assert off > 1.0  # a single start from the centres misses: the problem is not convex
     result = brdftab.fit(table, "cook-torrance-alpha-theta", free=free, params=start, starts=8, albedo=False)
     for key, want in BITTERLING.items():
         assert result.parameters[key] == pytest.approx(want, rel=0.01), key
