@@ -256,43 +256,77 @@ class _Samples:
     theta_i: np.ndarray  # [m] rad
 
 
-def _valid_nodes(table, max_theta_deg: float):
-    """Flat indices of the table's usable nodes and the count of each reason a node is not."""
-    grid = table.grid
-    if not hasattr(grid, "directions_into"):
-        raise BrdftabError(f"the table's sample layout ({grid.describe()}) is not a brdftab grid; convert the "
-                           "table to one (brdftab convert) to fit it")
-    c_min = math.cos(math.radians(max_theta_deg))
-    above = grid.node_above_horizon().reshape(-1)
-    keep = np.zeros(grid.size, bool)
-    step = 1 << 18
-    wi = np.empty((step, 3))
-    wo = np.empty((step, 3))
-    for s in range(0, grid.size, step):
-        e = min(s + step, grid.size)
-        grid.directions_into(s, e, wi[:e - s], wo[:e - s])
-        keep[s:e] = (wi[:e - s, 2] >= c_min) & (wo[:e - s, 2] >= c_min)
-    keep &= above
-    values = table.values.reshape(grid.size, -1)
-    finite = np.isfinite(values)
-    miss = table.missing
-    if miss is not None:
-        finite &= ~miss.reshape(grid.size, -1)
-    keep &= finite.any(axis=1)
-    return np.flatnonzero(keep)
+class _Nodes:
+    """The stored samples of a table as flat nodes: a brdftab grid's nodes, or an RGL file's
+    warped sample nodes (where its reader is exact)."""
 
+    def __init__(self, table):
+        self.table = table
+        grid = table.grid
+        self.values = table.values.reshape(-1, table.values.shape[-1])
+        miss = getattr(table, "missing", None)
+        self.missing = None if miss is None else miss.reshape(self.values.shape)
+        if hasattr(grid, "directions_into"):
+            self.grid, self._wi, self._wo = grid, None, None
+        elif hasattr(table, "_vndf"):  # an RGL .bsdf: the nodes its reader returns exactly
+            from .formats.rgl import node_geometry
 
-def _samples(table, nodes) -> _Samples:
-    grid = table.grid
-    wi, wo = grid._directions(np.unravel_index(nodes, grid.shape))
-    wi = np.ascontiguousarray(wi, float)
-    wo = np.ascontiguousarray(wo, float)
-    target = np.array(table.values.reshape(grid.size, -1)[nodes], float)
-    miss = table.missing
-    if miss is not None:
-        target[miss.reshape(grid.size, -1)[nodes]] = np.nan
-    target[~np.isfinite(target)] = np.nan
-    return _Samples(wi, wo, target, wi[:, 2] * wo[:, 2], np.arccos(np.clip(wi[:, 2], -1.0, 1.0)))
+            wi, wo, *_ = node_geometry(table._vndf, table.theta_i.astype(np.float64),
+                                       table.phi_i.astype(np.float64), table.resolution, table.isotropic)
+            self.grid, self._wi, self._wo = None, np.ascontiguousarray(wi), np.ascontiguousarray(wo)
+        else:
+            raise BrdftabError(f"cannot fit a table whose samples are laid out as {grid.describe()}")
+        self.size = self.values.shape[0]
+
+    def directions(self, idx):
+        if self.grid is None:
+            return self._wi[idx], self._wo[idx]
+        wi, wo = self.grid._directions(np.unravel_index(idx, self.grid.shape))
+        return np.ascontiguousarray(wi, float), np.ascontiguousarray(wo, float)
+
+    def valid(self, max_theta_deg: float) -> np.ndarray:
+        """Flat indices of the usable nodes: both directions above the horizon and within the
+        cut-off, a finite value not declared missing in at least one channel."""
+        from .brdf import HORIZON
+
+        c_min = math.cos(math.radians(max_theta_deg))
+        keep = np.zeros(self.size, bool)
+        step = 1 << 18
+        for s in range(0, self.size, step):
+            e = min(s + step, self.size)
+            if self.grid is not None:
+                wi, wo = np.empty((e - s, 3)), np.empty((e - s, 3))
+                self.grid.directions_into(s, e, wi, wo)
+            else:
+                wi, wo = self._wi[s:e], self._wo[s:e]
+            keep[s:e] = (wi[:, 2] >= c_min) & (wo[:, 2] >= c_min) & (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON)
+        finite = np.isfinite(self.values)
+        if self.missing is not None:
+            finite &= ~self.missing
+        keep &= finite.any(axis=1)
+        return np.flatnonzero(keep)
+
+    def samples(self, idx) -> _Samples:
+        wi, wo = self.directions(idx)
+        target = np.array(self.values[idx], float)
+        if self.missing is not None:
+            target[self.missing[idx]] = np.nan
+        target[~np.isfinite(target)] = np.nan
+        return _Samples(wi, wo, target, wi[:, 2] * wo[:, 2], np.arccos(np.clip(wi[:, 2], -1.0, 1.0)))
+
+    def grid_table(self, model) -> dict:
+        """The ``[grid]`` of the fitted spec: the table's own, or for a file without a brdftab
+        grid (RGL) the MERL grid when the fit is isotropic and reciprocal, else a Rusinkiewicz
+        grid of the same resolution that does not fold φd (anisotropic when the fit is)."""
+        if self.grid is not None:
+            return grid_table(self.grid)
+        if model.isotropic and model.reciprocal:
+            return {"type": "merl"}
+        cfg = {"type": "rusinkiewicz", "theta_h_spacing": "merl", "phi_d_fold": "none", "n_theta_h": 90,
+               "n_theta_d": 90, "n_phi_d": 360}
+        if not model.isotropic:
+            cfg.update(anisotropic=True, n_phi_h=360)
+        return cfg
 
 
 # --- the result ----------------------------------------------------------------------------
@@ -520,7 +554,8 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
     keys, x0, lo, hi = _free_vector(start_table, free, bounds)
     _build(start_table, folder)  # the start itself must be a valid model
 
-    nodes = _valid_nodes(table, max_theta_deg)
+    source = _Nodes(table)
+    nodes = source.valid(max_theta_deg)
     if nodes.size == 0:
         raise BrdftabError(f"the table has no valid samples to fit (every node is missing, not finite, below the "
                            f"horizon or beyond θ = {max_theta_deg:g}°)")
@@ -529,7 +564,7 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
     refine_nodes = np.sort(rng.choice(nodes, min(nodes.size, refine_samples), replace=False))
     lam = table.wavelengths if table.spectral else None
 
-    positive = table.values.reshape(table.grid.size, -1)[nodes]
+    positive = source.values[nodes]
     positive = positive[np.isfinite(positive) & (positive > 0)]
     floor = LOG_FLOOR * float(np.median(positive)) if positive.size else 1e-12
 
@@ -567,7 +602,7 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
         return least_squares(res, x, bounds=(lo, hi), loss="soft_l1", f_scale=fs, x_scale="jac",
                              method="trf", max_nfev=200 * (len(x) + 1), ftol=tol, xtol=tol, gtol=tol)
 
-    search = _samples(table, search_nodes)
+    search = source.samples(search_nodes)
     res_search, _ = residuals_of(search)
     points = [x0]
     if starts > 1:
@@ -585,7 +620,7 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
     if not runs:
         raise BrdftabError("no start gave a valid model")
     runs.sort(key=lambda r: r.cost)
-    refine = _samples(table, refine_nodes)
+    refine = source.samples(refine_nodes)
     res_refine, mask = residuals_of(refine)
     best = solve(res_refine, runs[0].x)
     x = best.x
@@ -617,7 +652,7 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
             by_theta.append([float(b0), float(b1), rms, n])
 
     result = FitResult(
-        model=fitted, model_table=fitted_table, grid_table=grid_table(table.grid), free=keys,
+        model=fitted, model_table=fitted_table, grid_table=source.grid_table(fitted), free=keys,
         parameters={k: float(v) for k, v in zip(keys, x)},
         uncertainties={k: float(v) for k, v in zip(keys, sd)},
         correlations=[[None if not np.isfinite(c) else float(c) for c in row] for row in corr],
