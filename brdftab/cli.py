@@ -793,7 +793,7 @@ def formats_(name, as_json):
 
 main.add_command(_runs_on(".pipeline", ".formats", ".checks")(validate))
 main.add_command(_runs_on(".plot", ".spec", ".formats", ".integrate")(plot))
-main.add_command(_runs_on(".fitting", ".spec", ".formats", ".integrate")(fit))
+main.add_command(_runs_on(".fitting", ".spec", ".formats", ".integrate", ".batch")(fit))
 
 if __name__ == "__main__":  # pragma: no cover
     main()

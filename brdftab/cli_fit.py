@@ -12,6 +12,7 @@ from pathlib import Path
 
 import click
 
+from .cli_validate import engine_options
 from .errors import BrdftabError
 
 __all__ = ["fit"]
@@ -67,7 +68,9 @@ def _bounds(values):
               help="Write a spec whose [model] is the fitted model and [grid] the table's grid.")
 @click.option("--overwrite", is_flag=True, help="Replace FIT.toml if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON object.")
-def fit(table, model, params, free, bounds, metric, starts, max_theta_deg, seed, out, overwrite, as_json):
+@engine_options
+def fit(table, model, params, free, bounds, metric, starts, max_theta_deg, seed, out, overwrite, as_json, workers,
+        scheduler):
     """Fit the --free parameters of a model to TABLE (at its own nodes) by least squares.
 
     Prints the fitted parameters with their uncertainties (one standard deviation, from the
@@ -88,8 +91,12 @@ def fit(table, model, params, free, bounds, metric, starts, max_theta_deg, seed,
     if out is not None:
         check_target(out, overwrite, inputs)  # before the search, not after it
     source = open_table(table)
-    result = fitting.fit(source, model, keys, params=given, metric=metric, bounds=_bounds(bounds),
-                         starts=starts, max_theta_deg=max_theta_deg, seed=seed)
+    from .batch import Engine
+
+    with Engine(workers, scheduler) as engine:  # --workers / --scheduler: the starts run in parallel there
+        result = fitting.fit(source, model, keys, params=given, metric=metric, bounds=_bounds(bounds),
+                             starts=starts, max_theta_deg=max_theta_deg, seed=seed,
+                             engine=engine if engine.distributed else None)
     if out is not None:
         text = result.spec_text(f"{out.stem}.nc", description=f"{result.model_table['name']} fitted to "
                                 f"{table.name} (brdftab fit, metric {metric}, residual {result.residual:.4g})")

@@ -514,15 +514,70 @@ def _declared_bounds(p, start: float):
     return float(lower), float(upper)
 
 
+@dataclass
+class _Problem:
+    """One least-squares problem: the model to build from ``x``, its bounds, the metric and
+    the samples. Plain data, so that a start can run on another process (an engine's worker)."""
+
+    start_table: dict
+    folder: str
+    keys: list
+    lo: np.ndarray
+    hi: np.ndarray
+    metric: str
+    floor: float
+    scale: float | None
+    lam: object
+    samples: _Samples
+
+    def model_at(self, x):
+        t = json.loads(json.dumps(self.start_table))
+        for k, v in zip(self.keys, x):
+            _set(t, k, float(v))
+        return _build(t, Path(self.folder)), t
+
+    def residuals(self, x):
+        s = self.samples
+        mask = np.isfinite(s.target)
+        target = np.where(mask, s.target, 0.0)
+        m, _ = self.model_at(x)
+        f = np.broadcast_to(m.eval(s.wi, s.wo, self.lam, assume_unit=True), target.shape)
+        if self.metric == "log":
+            r = np.log(np.maximum(f, self.floor)) - np.log(np.maximum(target, self.floor))
+        else:
+            r = (f - target) * s.cos[:, None]
+        return r[mask]
+
+    def solve(self, x, tol):
+        from scipy.optimize import least_squares
+
+        fs = self.scale
+        if fs is None:  # cos: the scale of the residuals at the start
+            fs = max(float(np.median(np.abs(self.residuals(x)))), 1e-12)
+        return least_squares(self.residuals, x, bounds=(self.lo, self.hi), loss="soft_l1", f_scale=fs,
+                             x_scale="jac", method="trf", max_nfev=200 * (len(x) + 1), ftol=tol, xtol=tol, gtol=tol)
+
+
+def _search_one(problem: _Problem, x):
+    """The search from one start: ``(x, cost, rms residual)``, or None when the model refuses
+    a combination of values on the way."""
+    try:
+        r = problem.solve(x, SEARCH_TOL)
+    except BrdftabError:
+        return None
+    return r.x, float(r.cost), float(np.sqrt(np.mean(r.fun ** 2))) if r.fun.size else 0.0
+
+
 def fit(table, model, free, *, params: dict | None = None, metric: str = "log", bounds: dict | None = None,
         starts: int = DEFAULT_STARTS, max_theta_deg: float = MAX_THETA_DEG, search_samples: int = SEARCH_SAMPLES,
         refine_samples: int = REFINE_SAMPLES, f_scale: float | None = None, seed: int = 0,
-        albedo: bool = True) -> FitResult:
+        albedo: bool = True, engine=None) -> FitResult:
     """Fit the ``free`` parameters of ``model`` to ``table`` (a :class:`~brdftab.table.Table` or
     a path). ``model``: a BRDF, a model name, a ``[model]`` table or a TOML file whose
     ``[model]`` is the starting model; ``params`` sets keys of it (spec units); ``bounds``
-    ``{key: (lo, hi)}`` replaces a key's default bounds. See the module docstring for the
-    samples, metrics, search and uncertainties.
+    ``{key: (lo, hi)}`` replaces a key's default bounds; ``engine`` (a started
+    :class:`brdftab.batch.Engine`) runs the starts in parallel on its workers. See the module
+    docstring for the samples, metrics, search and uncertainties.
 
     >>> import brdftab
     >>> truth = brdftab.models.create("microfacet", alpha=0.2)
@@ -532,8 +587,6 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
     >>> round(result.parameters["alpha"], 6)
     0.2
     """
-    from scipy.optimize import least_squares
-
     if metric not in METRICS:
         from .params import unknown
 
@@ -568,63 +621,31 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
     positive = positive[np.isfinite(positive) & (positive > 0)]
     floor = LOG_FLOOR * float(np.median(positive)) if positive.size else 1e-12
 
-    def model_at(x):
-        t = json.loads(json.dumps(start_table))
-        for k, v in zip(keys, x):
-            _set(t, k, float(v))
-        return _build(t, folder), t
-
-    def residuals_of(s: _Samples):
-        mask = np.isfinite(s.target)
-        target = np.where(mask, s.target, 0.0)
-        if metric == "log":
-            t_log = np.log(np.maximum(target, floor))
-
-        def res(x):
-            m, _ = model_at(x)
-            f = m.eval(s.wi, s.wo, lam, assume_unit=True)
-            f = np.broadcast_to(f, target.shape)
-            if metric == "log":
-                r = np.log(np.maximum(f, floor)) - t_log
-            else:
-                r = (f - target) * s.cos[:, None]
-            r = np.where(mask, r, 0.0)
-            return r[mask]
-        return res, mask
-
     scale = f_scale if f_scale is not None else (0.1 if metric == "log" else None)
-
-    def solve(res, x, tol=1e-8):
-        fs = scale
-        if fs is None:  # cos: the scale of the residuals at the start
-            r0 = res(x)
-            fs = max(float(np.median(np.abs(r0))), 1e-12)
-        return least_squares(res, x, bounds=(lo, hi), loss="soft_l1", f_scale=fs, x_scale="jac",
-                             method="trf", max_nfev=200 * (len(x) + 1), ftol=tol, xtol=tol, gtol=tol)
-
-    search = source.samples(search_nodes)
-    res_search, _ = residuals_of(search)
+    problem = _Problem(start_table, str(folder), keys, lo, hi, metric, floor, scale, lam, source.samples(search_nodes))
     points = [x0]
     if starts > 1:
         from scipy.stats import qmc
 
-        sobol = qmc.LatinHypercube(len(keys), seed=seed).random(starts - 1)
-        points += list(lo + sobol * (hi - lo))
-    runs = []
-    for x in points:
-        try:
-            r = solve(res_search, np.clip(x, lo, hi), SEARCH_TOL)
-        except BrdftabError:
-            continue  # a combination of values the model refuses (keys that constrain each other)
-        runs.append(r)
+        spread = qmc.LatinHypercube(len(keys), seed=seed).random(starts - 1)
+        points += list(lo + spread * (hi - lo))
+    calls = [(problem, np.clip(x, lo, hi)) for x in points]
+    if engine is None:
+        runs = [_search_one(*c) for c in calls]
+    else:
+        from .batch import ordered
+
+        runs = [r for _, r in ordered(engine.map(_search_one, calls))]
+    runs = [r for r in runs if r is not None]  # None: a combination of values the model refuses
     if not runs:
         raise BrdftabError("no start gave a valid model")
-    runs.sort(key=lambda r: r.cost)
+    runs.sort(key=lambda r: r[1])
     refine = source.samples(refine_nodes)
-    res_refine, mask = residuals_of(refine)
-    best = solve(res_refine, runs[0].x)
+    problem.samples = refine
+    best = problem.solve(runs[0][0], 1e-8)
     x = best.x
-    r = res_refine(x)
+    r = problem.residuals(x)
+    mask = np.isfinite(refine.target)
     m, n_par = r.size, len(x)
     jac = best.jac
     s2 = float(r @ r) / max(m - n_par, 1)
@@ -636,7 +657,7 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
     except np.linalg.LinAlgError:
         sd = np.full(n_par, np.inf)
         corr = np.full((n_par, n_par), np.nan)
-    fitted, fitted_table = model_at(x)
+    fitted, fitted_table = problem.model_at(x)
 
     # residual per θi bin (over the refine samples)
     per_sample = np.zeros(mask.shape)
@@ -658,7 +679,7 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
         correlations=[[None if not np.isfinite(c) else float(c) for c in row] for row in corr],
         metric=metric, residual=float(np.sqrt(np.mean(r ** 2))), residual_by_theta_i=by_theta,
         samples=int(refine_nodes.size), starts=len(points),
-        start_results=[float(np.sqrt(2 * q.cost / max(q.fun.size, 1))) for q in runs],
+        start_results=[q[2] for q in runs],
         bounds={k: (float(a), float(b)) for k, a, b in zip(keys, lo, hi)})
     if albedo:
         result.albedo = _albedo(table, fitted, lam, max_theta_deg)
