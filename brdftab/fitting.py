@@ -12,6 +12,11 @@ Keys
     ``terms.1.alpha`` (or ``terms[1].alpha``). A key whose value is a list (one number per
     channel) frees every element (``terms.0.albedo[0]``, ...).
 
+Tables
+    A table on a brdftab grid (its nodes), or an RGL ``.bsdf`` file (its stored sample nodes,
+    where the reader is exact; its fitted spec gets the MERL grid, or an unfolded
+    Rusinkiewicz grid of the same resolution for a non-reciprocal or anisotropic fit).
+
 Samples
     Every node of the table where both directions are above the horizon, θi and θo are at
     most ``max_theta_deg`` (default 80°: near grazing, measurements are least reliable and
@@ -34,9 +39,10 @@ Search
     nudged up by 10⁻⁹ relative), a range open at one end is closed at the start value ± 10 ×
     max(|start|, 1) (documented practical bounds; give ``bounds`` to choose others). These
     problems are not convex: by default ``starts`` = 16 starts — the start value and points of
-    a scrambled Sobol sequence (seeded) spread over the bounds — each run on a random subset
+    a Latin hypercube (seeded) spread over the bounds — each run on a random subset
     of at most ``search_samples`` (20 000) nodes; the best is refined on at most
-    ``refine_samples`` (200 000) nodes, on which the figures are computed.
+    ``refine_samples`` (200 000) nodes, on which the figures are computed. With an ``engine``
+    (:class:`brdftab.batch.Engine` on dask.distributed) the starts run in parallel.
 
 Uncertainties
     From the Jacobian J of the residuals at the solution: covariance s² (JᵀJ)⁻¹ with
