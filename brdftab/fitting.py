@@ -144,19 +144,13 @@ def _add_declared(table: dict, key: str) -> bool:
     does not hold it: its default, else the centre of its declared range. False when ``key``
     names no declared real parameter, or it has no start (an open range and no default)."""
     from .params import REQUIRED
-    from .sweep import parse_key
 
-    parts = parse_key(key)
-    if not parts or not isinstance(parts[-1], str):
+    owner = _owner(table, key)
+    if owner is None:
         return False
-    head = ".".join(str(x) for x in parts[:-1])
-    node = table if not head else _walk(table, head)
-    node = node if not head or node is None else node[3]
-    if not isinstance(node, dict) or "name" not in node:
-        return False
-    p = _params_of(node).get(parts[-1])
-    if p is None:
-        return False
+    node, name = owner
+    p = _params_of(node)[name]
+    parts = [name]
     if p.kind not in _REAL_KINDS:
         raise BrdftabError(f"--free: '{key}' is not a number (a {p.kind} parameter: {p.expected()}); only "
                            "real-valued parameters can be fitted")
@@ -428,7 +422,7 @@ def _start_model(model, params, where):
         table = model_table(model)
     elif isinstance(model, dict):
         table = json.loads(json.dumps(model))
-    elif isinstance(model, (str, Path)) and (str(model).endswith(".toml") or Path(model).is_file()):
+    elif isinstance(model, Path) or (isinstance(model, str) and model.lower().endswith(".toml")):
         raw, _ = read_spec(Path(model))
         if not isinstance(raw.get("model"), dict):
             raise BrdftabError(f"{model}: no [model] table")
@@ -440,16 +434,46 @@ def _start_model(model, params, where):
         raise BrdftabError(f"expected a model, a model name or a spec file, got {type(model).__name__}")
     for key, value in (params or {}).items():
         if _walk(table, key) is None:
-            if "." not in key and "[" not in key:  # a key the model declares but the table does not hold yet
-                declared = _params_of(table)
-                if key in declared:
-                    table[key] = value
-                    continue
-                raise BrdftabError(f"{where}: unknown parameter '{key}' for model '{table['name']}'"
-                                   f"{_suggest(key, list(declared))}; valid: {', '.join(declared)}")
-            raise BrdftabError(f"{where}: '{key}' names no parameter of the model{_suggest(key, free_keys(table))}")
+            owner = _owner(table, key)  # a key the model declares but the table does not hold yet
+            if owner is None:
+                raise BrdftabError(f"{where}: '{key}' names no parameter of the model"
+                                   f"{_suggest(key, _all_keys(table))}; valid: {', '.join(_all_keys(table))}")
+            node, name = owner
+            node[name] = value
+            continue
         _set(table, key, value)
     return table, folder
+
+
+def _owner(table: dict, key: str):
+    """``(model table, spec key)`` when ``key`` names a parameter that model declares (held or
+    not), else None."""
+    from .sweep import parse_key
+
+    parts = parse_key(key)
+    if not parts or not isinstance(parts[-1], str):
+        return None
+    head = ".".join(str(x) for x in parts[:-1])
+    node = table if not head else _walk(table, head)
+    node = node if not head or node is None else node[3]
+    if isinstance(node, dict) and "name" in node and parts[-1] in _params_of(node):
+        return node, parts[-1]
+    return None
+
+
+def _all_keys(table: dict, prefix: str = "") -> list:
+    """Every declared spec key of the model and its terms (``terms.1.alpha``)."""
+    out = []
+    for key, p in _params_of(table).items():
+        value = table.get(key)
+        if p.kind == "brdfs" and isinstance(value, list):
+            for i, sub in enumerate(value):
+                out += _all_keys(sub, f"{prefix}{key}.{i}.")
+        elif p.kind == "brdf" and isinstance(value, dict):
+            out += _all_keys(value, f"{prefix}{key}.")
+        else:
+            out.append(prefix + key)
+    return out
 
 
 def _suggest(word, choices) -> str:
@@ -611,7 +635,7 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
         raise BrdftabError(f"max_theta_deg: expected a number > 0 and <= 90, got {max_theta_deg!r}")
     start_table, folder = _start_model(model, params, "--param")
     keys, x0, lo, hi = _free_vector(start_table, free, bounds)
-    _build(start_table, folder)  # the start itself must be a valid model
+    first = _build(start_table, folder)  # the start itself must be a valid model
 
     source = _Nodes(table)
     nodes = source.valid(max_theta_deg)
@@ -635,6 +659,11 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
 
         spread = qmc.LatinHypercube(len(keys), seed=seed).random(starts - 1)
         points += list(lo + spread * (hi - lo))
+    got = first.eval(problem.samples.wi[:1], problem.samples.wo[:1], lam, assume_unit=True).shape[-1]
+    want = problem.samples.target.shape[-1]
+    if got not in (1, want):
+        raise BrdftabError(f"the model gives {got} channels ({', '.join(first.channels or ())}), the table has "
+                           f"{want}: give per-channel values that match the table's channels")
     calls = [(problem, np.clip(x, lo, hi)) for x in points]
     if engine is None:
         runs = [_search_one(*c) for c in calls]

@@ -54,10 +54,9 @@ def test_lambert_plus_ggx_sum_from_a_noisy_table():
     truth = models.create("sum", terms=[models.create("lambert", albedo=0.3),
                                         models.create("microfacet", alpha=0.15, fresnel="schlick", f0=0.6)])
     table = noisy(truth, seed=2)
-    start = {"name": "sum", "terms": [{"name": "lambert", "albedo": 0.5},
-                                      {"name": "microfacet", "alpha": 0.4, "fresnel": "schlick", "f0": 0.2}]}
+    start = {"name": "sum", "terms": [{"name": "lambert", "albedo": 0.5}, {"name": "microfacet", "alpha": 0.4}]}
     result = brdftab.fit(table, start, free=["terms.0.albedo", "terms.1.alpha", "terms[1].f0"], starts=4,
-                         albedo=False)
+                         params={"terms.1.fresnel": "schlick", "terms.1.f0": 0.2}, albedo=False)
     assert result.free == ["terms.0.albedo", "terms.1.alpha", "terms[1].f0"]
     assert_recovered(result, {"terms.0.albedo": 0.3, "terms.1.alpha": 0.15, "terms[1].f0": 0.6}, 0.005)
     assert result.model.terms[1].parameters["alpha"] == result.parameters["terms.1.alpha"]
@@ -161,6 +160,10 @@ def table_file(tmp_path_factory):
     (["--free", "alpha", "--bounds", "alpha=0.5,0.9"], ["start alpha = 0.3 is outside its bounds [0.5, 0.9]"]),
     (["--free", "alpha", "--bounds", "alpha=0.1"], ["--bounds alpha: expected LO,HI"]),
     (["--free", "alpha", "--metric", "abs"], ["--metric"]),
+    (["--free", "alpha", "--param", "alpah=0.2"], ["'alpah' names no parameter", "did you mean 'alpha'"]),
+    (["--free", "alpha", "--param", "fresnel=schlick", "--param", "f0=[0.5, 0.5, 0.5]"],
+     ["the model gives 3 channels", "the table has 1"]),
+    (["--free", "alpha", "--param", "alpha=abc"], ["alpha", "not a number"]),
     (["--free", "alpha", "--model", "microfacett"], ["did you mean 'microfacet'"]),
 ])
 def test_bad_input_is_one_line(table_file, tmp_path, args, expected):
