@@ -66,11 +66,14 @@ def _bounds(values):
 @click.option("--seed", type=int, default=0, show_default=True, help="Seed of the spread starts and subsamples.")
 @click.option("-o", "--out", "out", type=click.Path(path_type=Path), metavar="FIT.toml",
               help="Write a spec whose [model] is the fitted model and [grid] the table's grid.")
-@click.option("--overwrite", is_flag=True, help="Replace FIT.toml if it exists.")
+@click.option("--report", "report", type=click.Path(path_type=Path), metavar="FIT.html",
+              help="Write an HTML page: parameters, uncertainties, correlations, residual per incidence angle, "
+                   "albedo of table and fit, in-plane curves of both.")
+@click.option("--overwrite", is_flag=True, help="Replace FIT.toml (and FIT.html) if it exists.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as one JSON object.")
 @engine_options
-def fit(table, model, params, free, bounds, metric, starts, max_theta_deg, seed, out, overwrite, as_json, workers,
-        scheduler):
+def fit(table, model, params, free, bounds, metric, starts, max_theta_deg, seed, out, report, overwrite, as_json,
+        workers, scheduler):
     """Fit the --free parameters of a model to TABLE (at its own nodes) by least squares.
 
     Prints the fitted parameters with their uncertainties (one standard deviation, from the
@@ -88,8 +91,13 @@ def fit(table, model, params, free, bounds, metric, starts, max_theta_deg, seed,
     if out is not None and out.suffix.lower() != ".toml":
         raise BrdftabError(f"{out}: the fitted spec is a TOML file: name it *.toml")
     inputs = [(table, "the table")] + ([(Path(model), "the model file")] if model.endswith(".toml") else [])
-    if out is not None:
-        check_target(out, overwrite, inputs)  # before the search, not after it
+    if report is not None and report.suffix.lower() not in (".html", ".htm"):
+        raise BrdftabError(f"{report}: the report is an HTML page: name it *.html")
+    if out is not None and report is not None and out.resolve() == report.resolve():
+        raise BrdftabError(f"{out}: -o and --report name the same file")
+    for target in (out, report):
+        if target is not None:
+            check_target(target, overwrite, inputs)  # before the search, not after it
     source = open_table(table)
     from .batch import Engine
 
@@ -102,10 +110,18 @@ def fit(table, model, params, free, bounds, metric, starts, max_theta_deg, seed,
                                 f"{table.name} (brdftab fit, metric {metric}, residual {result.residual:.4g})")
         with atomic_path(out, overwrite=overwrite, inputs=inputs) as tmp:
             Path(tmp).write_text(text, encoding="utf-8")
+    if report is not None:
+        from .report_fit import render
+
+        page = render(result, source, table.name)
+        with atomic_path(report, overwrite=overwrite, inputs=inputs) as tmp:
+            Path(tmp).write_text(page, encoding="utf-8")
     if as_json:
         doc = {"table": str(table), **result.to_json()}
         if out is not None:
             doc["spec"] = str(out)
+        if report is not None:
+            doc["report"] = str(report)
         click.echo(json.dumps(doc))
         return
     click.echo(f"fitted {', '.join(result.free)} of {result.model_table['name']} to {table} "
@@ -115,5 +131,6 @@ def fit(table, model, params, free, bounds, metric, starts, max_theta_deg, seed,
     click.echo(f"residual (rms of the {metric} metric): {result.residual:.4g}")
     for lo, hi, rms, n in result.residual_by_theta_i:
         click.echo(f"  theta_i {lo:g}-{hi:g} deg: {rms:.4g} ({n} samples)")
-    if out is not None:
-        click.echo(f"wrote {out}")
+    for target in (out, report):
+        if target is not None:
+            click.echo(f"wrote {target}")

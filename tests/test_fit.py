@@ -216,3 +216,27 @@ def test_a_measured_rgl_file_lambert_plus_ggx_beats_lambert_and_its_spec_tabulat
     assert r.exit_code == 0, r.output
     fitted = brdftab.open(tmp_path / "fit.nc")
     assert fitted.grid.describe() == "merl theta_h[90] x theta_d[90] x phi_d[180]"
+
+
+def test_the_html_report_shows_the_fit(table_file, tmp_path):
+    import base64
+    import io
+    import re
+
+    from PIL import Image
+
+    r = cli("fit", table_file, "--model", "microfacet", "--param", "alpha=0.6", "--free", "alpha", "--starts", "2",
+            "--report", tmp_path / "fit.html", "--json")
+    assert r.exit_code == 0, r.output
+    doc = json.loads(r.output)
+    page = (tmp_path / "fit.html").read_text(encoding="utf-8")
+    assert page.startswith("<!DOCTYPE html>") and page.rstrip().endswith("</html>")
+    assert f'<td>alpha</td><td class="num">{doc["parameters"]["alpha"]:.4g}</td>' in page
+    assert "Residual per incidence angle" in page and "Directional albedo" in page
+    images = re.findall(r'src="data:image/png;base64,([A-Za-z0-9+/=]+)"', page)
+    assert len(images) == 1
+    assert Image.open(io.BytesIO(base64.b64decode(images[0]))).size[0] > 100
+    r = cli("fit", table_file, "--model", "microfacet", "--param", "alpha=0.6", "--free", "alpha",
+            "--report", tmp_path / "fit.txt")
+    one_error(r.stderr, r.exit_code, "name it *.html")
+    assert not (tmp_path / "fit.txt").exists()
