@@ -741,5 +741,6 @@ def _albedo(table, model, lam, max_theta_deg):
             table.outside = outside
 
     def rows(a):
-        return [[None if not np.isfinite(v) else float(v) for v in row] for row in np.asarray(a).reshape(theta.size, -1)]
+        return [[None if not np.isfinite(v) else float(v) for v in row]
+                for row in np.asarray(a).reshape(theta.size, -1)]
     return {"theta_i_deg": [float(t) for t in np.degrees(theta)], "table": rows(a_t), "fit": rows(a_f)}

@@ -44,7 +44,7 @@ def test_microfacet_alpha_and_n_from_a_noisy_table():
     assert_recovered(result, {"alpha": 0.2, "n": 1.5}, 0.005)
     # 1 % multiplicative noise is a log residual of 0.01 (rms): the fit is at the noise
     assert result.residual == pytest.approx(0.01, rel=0.05)
-    assert [b[:2] for b in result.residual_by_theta_i][0] == [0.0, 10.0]
+    assert result.residual_by_theta_i[0][:2] == [0.0, 10.0]
     assert all(r == pytest.approx(0.01, rel=0.2) for _, _, r, _ in result.residual_by_theta_i)
     assert np.asarray(result.correlations).shape == (2, 2)
     assert result.correlations[0][0] == pytest.approx(1.0)
