@@ -40,7 +40,8 @@ Search
     max(|start|, 1) (documented practical bounds; give ``bounds`` to choose others). These
     problems are not convex: by default ``starts`` = 16 starts — the start value and points of
     a Latin hypercube (seeded) spread over the bounds — each run on a random subset
-    of at most ``search_samples`` (20 000) nodes; the best is refined on at most
+    of at most ``search_samples`` (20 000) nodes and at most ``SEARCH_STEPS`` (50) steps; the
+    best is refined (to tolerance 10⁻⁸, without a step cap) on at most
     ``refine_samples`` (200 000) nodes, on which the figures are computed. With an ``engine``
     (:class:`brdftab.batch.Engine` on dask.distributed) the starts run in parallel.
 
@@ -80,6 +81,9 @@ SEARCH_SAMPLES = 20_000
 REFINE_SAMPLES = 200_000
 #: Tolerance (ftol, xtol, gtol) of the search from each start; the refine uses 1e-8.
 SEARCH_TOL = 1e-5
+#: Most model evaluations (Jacobians apart) a search from one start may take: a start that
+#: converges does so in a few tens; one that wanders is cut short (the refine has no such cap).
+SEARCH_STEPS = 50
 #: An open end of a range is closed at start ± OPEN_SPAN × max(|start|, 1).
 OPEN_SPAN = 10.0
 _BIN_DEG = 10.0
@@ -578,21 +582,22 @@ class _Problem:
             r = (f - target) * s.cos[:, None]
         return r[mask]
 
-    def solve(self, x, tol):
+    def solve(self, x, tol, max_nfev=None):
         from scipy.optimize import least_squares
 
         fs = self.scale
         if fs is None:  # cos: the scale of the residuals at the start
             fs = max(float(np.median(np.abs(self.residuals(x)))), 1e-12)
         return least_squares(self.residuals, x, bounds=(self.lo, self.hi), loss="soft_l1", f_scale=fs,
-                             x_scale="jac", method="trf", max_nfev=200 * (len(x) + 1), ftol=tol, xtol=tol, gtol=tol)
+                             x_scale="jac", method="trf", max_nfev=max_nfev or 200 * (len(x) + 1), ftol=tol, xtol=tol,
+                             gtol=tol)
 
 
 def _search_one(problem: _Problem, x):
     """The search from one start: ``(x, cost, rms residual)``, or None when the model refuses
     a combination of values on the way."""
     try:
-        r = problem.solve(x, SEARCH_TOL)
+        r = problem.solve(x, SEARCH_TOL, SEARCH_STEPS)
     except BrdftabError:
         return None
     return r.x, float(r.cost), float(np.sqrt(np.mean(r.fun ** 2))) if r.fun.size else 0.0
