@@ -99,6 +99,8 @@ def fit(table, model, params, free, bounds, metric, starts, max_theta_deg, seed,
         if target is not None:
             check_target(target, overwrite, inputs)  # before the search, not after it
     source = open_table(table)
+    if out is not None and hasattr(source.grid, "directions_into"):
+        fitting.grid_table(source.grid)  # a grid no [grid] table reproduces: say so before the search
     from .batch import Engine
 
     with Engine(workers, scheduler) as engine:  # --workers / --scheduler: the starts run in parallel there

@@ -213,41 +213,57 @@ def _parse_value(text: str):
 
 # --- grids as spec tables ----------------------------------------------------------------
 def grid_table(grid) -> dict:
-    """The ``[grid]`` table of a spec whose grid equals ``grid`` (node for node)."""
-    from .grids import grid_from_config
+    """The ``[grid]`` table of a spec whose grid has ``grid``'s nodes: the same node for node
+    (the same bits when its angles were written in degrees, else to 10⁻¹² rad). Raises
+    :class:`~brdftab.errors.BrdftabError` when no ``[grid]`` table gives them."""
+    from .grids import GRIDS, grid_from_config
 
-    if not hasattr(grid, "attrs") or not hasattr(grid, "axes") or not hasattr(grid, "directions"):
-        raise BrdftabError(f"the table's sample layout ({grid.describe()}) has no [grid] form; fit a table on a "
-                           "brdftab grid (convert it first)")
-    attrs = grid.attrs()
+    attrs = grid.attrs() if hasattr(grid, "attrs") else {}
     candidates = []
-    if attrs.get("parameterization", "").startswith("rusinkiewicz"):
-        pos = attrs.get("sample_position")
-        if attrs.get("grid") == "merl":
-            candidates.append({"type": "merl", "sample_position": pos})
-        base = {"type": "rusinkiewicz", "phi_d_fold": attrs["phi_d_fold"]}
-        if grid.anisotropic:
-            base["anisotropic"] = True
-        if pos != "explicit" and attrs["theta_h_spacing"] != "explicit":
-            counts = dict(base, theta_h_spacing=attrs["theta_h_spacing"], sample_position=pos,
-                          **{f"n_{a.name}": len(a) for a in grid.axes})
-            candidates.append(counts)
-        candidates.append(dict(base, **{f"{a.name}_deg": [math.degrees(x) for x in a.values] for a in grid.axes}))
-    else:
-        cfg = {"type": attrs.get("grid", "spherical")}
-        if attrs.get("relative_to", "none") != "none":
-            cfg["relative_to"] = attrs["relative_to"]
-        cfg.update({f"{a.name}_deg": [math.degrees(x) for x in a.values] for a in grid.axes})
-        candidates.append(cfg)
+    if attrs.get("grid") == "merl":
+        candidates.append({"type": "merl", "sample_position": attrs.get("sample_position")})
+    types = [t for t, cls in GRIDS.items() if attrs.get("parameterization") in cls.parameterizations]
+    types = ([attrs["grid"]] if attrs.get("grid") in types else []) + types
+    for name in dict.fromkeys(types):
+        declared = {p.name: p for p in GRIDS[name].params}
+        base = {"type": name}
+        for key, p in declared.items():  # the choices the grid records (folds, spacing, node positions)
+            value = attrs.get(key, getattr(grid, key, None))
+            if p.kind == "choice" and value in p.choices and value != p.default:
+                base[p.spec_key] = value
+            elif p.kind == "bool" and isinstance(value, (bool, np.bool_)) and bool(value) != p.default:
+                base[p.spec_key] = bool(value)
+        counts = {f"n_{a.name}": len(a) for a in grid.axes if f"n_{a.name}" in declared}
+        if len(counts) == len(grid.axes):
+            candidates.append(dict(base, **counts))
+        lists = {declared[a.name].spec_key: [round(math.degrees(x), 12) for x in a.values] for a in grid.axes
+                 if a.name in declared}
+        if len(lists) == len(grid.axes):
+            mixed = {}  # uniform axes by count, explicit ones by list
+            for a, (key, values) in zip(grid.axes, lists.items()):
+                explicit = getattr(a, "rule", "explicit") == "explicit" or f"n_{a.name}" not in declared
+                mixed.update({key: values} if explicit else {f"n_{a.name}": len(a)})
+            candidates.append(dict(base, **mixed))
+            candidates.append(dict(base, **lists))
+            spacing = {k: v for k, v in base.items() if k != "theta_h_spacing"}  # not with explicit lists
+            candidates.append(dict(spacing, **lists))
+    close = None
     for cfg in candidates:
         try:
             g = grid_from_config(cfg)
         except BrdftabError:
             continue
-        if g.shape == grid.shape and all(np.allclose(a.values, b.values, rtol=0, atol=1e-12)
-                                         for a, b in zip(g.axes, grid.axes)):
+        if g.shape != grid.shape or [a.name for a in g.axes] != [a.name for a in grid.axes]:
+            continue
+        if g.equals(grid) or all(a.equals(b) for a, b in zip(g.axes, grid.axes)):
             return cfg
-    raise BrdftabError(f"the table's grid ({grid.describe()}) has no [grid] form that reproduces its nodes")
+        if close is None and all(np.allclose(a.values, b.values, rtol=0, atol=1e-12)
+                                 for a, b in zip(g.axes, grid.axes)):
+            close = cfg
+    if close is not None:
+        return close
+    raise BrdftabError(f"the table's grid ({grid.describe()}) has no [grid] form that reproduces its nodes: "
+                       "a fitted spec cannot be written for it")
 
 
 # --- the samples ---------------------------------------------------------------------------
@@ -357,9 +373,11 @@ class FitResult:
     start_results: list = field(default_factory=list)
     albedo: dict = field(default_factory=dict)
     bounds: dict = field(default_factory=dict)
+    #: Why there is no ``grid_table`` (a table whose grid no ``[grid]`` table reproduces).
+    grid_error: str = ""
 
     def to_json(self) -> dict:
-        return {"model": self.model_table, "free": list(self.free), "parameters": self.parameters,
+        return {"model": self.model_table, "grid": self.grid_table, "free": list(self.free), "parameters": self.parameters,
                 "uncertainties": self.uncertainties, "correlations": self.correlations, "metric": self.metric,
                 "residual": self.residual, "residual_by_theta_i": self.residual_by_theta_i,
                 "samples": self.samples, "starts": self.starts, "start_residuals": self.start_results,
@@ -367,6 +385,8 @@ class FitResult:
 
     def spec_text(self, output: str, description: str = "") -> str:
         """A spec file (TOML) of the fitted model on the table's grid writing ``output``."""
+        if self.grid_table is None:
+            raise BrdftabError(self.grid_error)
         lines = []
         if description:
             lines.append(f"description = {json.dumps(description, ensure_ascii=False)}")
@@ -712,8 +732,12 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
             rms = float(np.sqrt(np.sum(per_sample[rows] ** 2) / n))
             by_theta.append([float(b0), float(b1), rms, n])
 
+    try:
+        grid_cfg, grid_error = source.grid_table(fitted), ""
+    except BrdftabError as exc:
+        grid_cfg, grid_error = None, str(exc)
     result = FitResult(
-        model=fitted, model_table=fitted_table, grid_table=source.grid_table(fitted), free=keys,
+        model=fitted, model_table=fitted_table, grid_table=grid_cfg, grid_error=grid_error, free=keys,
         parameters={k: float(v) for k, v in zip(keys, x)},
         uncertainties={k: float(v) for k, v in zip(keys, sd)},
         correlations=[[None if not np.isfinite(c) else float(c) for c in row] for row in corr],

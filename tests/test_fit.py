@@ -141,8 +141,13 @@ def test_grid_table_reproduces_each_grid_kind():
                  "phi_o_deg": [0, 90, 180]}):
         grid = grid_from_config(cfg)
         again = grid_from_config(grid_table(grid))
-        assert again.shape == grid.shape and again.describe() == grid.describe()
-        assert all(np.allclose(a.values, b.values, rtol=0, atol=1e-12) for a, b in zip(again.axes, grid.axes))
+        assert again.equals(grid), cfg  # node for node, bit for bit (angles written in degrees)
+    # nodes that were never degrees: the same to 1e-12 rad
+    grid = grid_from_config({"type": "spherical", "theta_i_deg": [0, 30], "phi_i_deg": [0], "theta_o_deg": [10, 45],
+                             "phi_o_deg": [0, 90]})
+    grid.axes[0].values[1] = 0.5123456789012345
+    again = grid_from_config(grid_table(grid))
+    assert np.allclose(again.axes[0].values, grid.axes[0].values, rtol=0, atol=1e-12)
 
 
 @pytest.fixture(scope="module")
@@ -240,3 +245,20 @@ def test_the_html_report_shows_the_fit(table_file, tmp_path):
             "--report", tmp_path / "fit.txt")
     one_error(r.stderr, r.exit_code, "name it *.html")
     assert not (tmp_path / "fit.txt").exists()
+
+
+def test_a_grid_without_a_spec_form_is_refused_before_the_search(table_file, tmp_path, monkeypatch):
+    from brdftab import fitting
+
+    def no_form(grid):
+        raise BrdftabError(f"the table's grid ({grid.describe()}) has no [grid] form that reproduces its nodes")
+
+    monkeypatch.setattr(fitting, "grid_table", no_form)
+    r = cli("fit", table_file, "--model", "microfacet", "--param", "alpha=0.6", "--free", "alpha",
+            "-o", tmp_path / "fit.toml")
+    one_error(r.stderr, r.exit_code, "no [grid] form")
+    assert not (tmp_path / "fit.toml").exists()
+    result = brdftab.fit(table_file, "microfacet", ["alpha"], params={"alpha": 0.6}, starts=1, albedo=False)
+    assert result.grid_table is None and result.parameters["alpha"] == pytest.approx(0.3, rel=1e-6)
+    with pytest.raises(BrdftabError, match="no \\[grid\\] form"):
+        result.spec_text("fit.nc")
