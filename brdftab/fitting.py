@@ -378,7 +378,8 @@ class FitResult:
 
     def to_json(self) -> dict:
         return {"model": self.model_table, "grid": self.grid_table, "free": list(self.free),
-                "parameters": self.parameters, "uncertainties": self.uncertainties, "correlations": self.correlations, "metric": self.metric,
+                "parameters": self.parameters, "uncertainties": self.uncertainties,
+                "correlations": self.correlations, "metric": self.metric,
                 "residual": self.residual, "residual_by_theta_i": self.residual_by_theta_i,
                 "samples": self.samples, "starts": self.starts, "start_residuals": self.start_results,
                 "bounds": {k: list(v) for k, v in self.bounds.items()}, "albedo": self.albedo}
