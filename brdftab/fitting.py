@@ -34,8 +34,12 @@ Metrics
     samples, comparable between fits of the same table with the same metric.
 
 Search
-    :func:`scipy.optimize.least_squares` (trust-region reflective, ``soft_l1`` loss with
-    scale ``f_scale``) within bounds: each parameter's declared range (an exclusive minimum
+    :func:`scipy.optimize.least_squares` (trust-region reflective) with the ``soft_l1`` loss
+    (scale ``f_scale``: 0.1 for ``log``, the median |r| at the start for ``cos``), which keeps
+    outliers from pulling the fit: on a measured-like file with 200 negative noise samples
+    (floored by the log metric, so residuals of several units) the Lambert albedo comes out
+    within 1.1 % of the model's, against 9 to 13 % low with the plain (``linear``) loss (a
+    test holds them within 3 % and beyond 10 %). Within bounds: each parameter's declared range (an exclusive minimum
     nudged up by 10⁻⁹ relative), a range open at one end is closed at the start value ± 10 ×
     max(|start|, 1) (documented practical bounds; give ``bounds`` to choose others). These
     problems are not convex: by default ``starts`` = 16 starts — the start value and points of
@@ -72,6 +76,8 @@ else:  # pragma: no cover - Python 3.10
 __all__ = ["fit", "FitResult", "model_table", "grid_table", "METRICS", "MAX_THETA_DEG"]
 
 METRICS = ("log", "cos")
+#: The losses of :func:`scipy.optimize.least_squares`; ``soft_l1`` is the default (see Search).
+LOSSES = ("soft_l1", "linear", "huber", "cauchy", "arctan")
 #: Default cut-off of the samples: θi and θo at most this many degrees.
 MAX_THETA_DEG = 80.0
 #: The log metric's floor relative to the median of the positive samples.
@@ -584,6 +590,7 @@ class _Problem:
     scale: float | None
     lam: object
     samples: _Samples
+    loss: str = "soft_l1"
 
     def model_at(self, x):
         t = json.loads(json.dumps(self.start_table))
@@ -609,7 +616,7 @@ class _Problem:
         fs = self.scale
         if fs is None:  # cos: the scale of the residuals at the start
             fs = max(float(np.median(np.abs(self.residuals(x)))), 1e-12)
-        return least_squares(self.residuals, x, bounds=(self.lo, self.hi), loss="soft_l1", f_scale=fs,
+        return least_squares(self.residuals, x, bounds=(self.lo, self.hi), loss=self.loss, f_scale=fs,
                              x_scale="jac", method="trf", max_nfev=max_nfev or 200 * (len(x) + 1), ftol=tol, xtol=tol,
                              gtol=tol)
 
@@ -627,7 +634,7 @@ def _search_one(problem: _Problem, x):
 def fit(table, model, free, *, params: dict | None = None, metric: str = "log", bounds: dict | None = None,
         starts: int = DEFAULT_STARTS, max_theta_deg: float = MAX_THETA_DEG, search_samples: int = SEARCH_SAMPLES,
         refine_samples: int = REFINE_SAMPLES, f_scale: float | None = None, seed: int = 0,
-        albedo: bool = True, engine=None) -> FitResult:
+        albedo: bool = True, engine=None, loss: str = "soft_l1") -> FitResult:
     """Fit the ``free`` parameters of ``model`` to ``table`` (a :class:`~brdftab.table.Table` or
     a path). ``model``: a BRDF, a model name, a ``[model]`` table or a TOML file whose
     ``[model]`` is the starting model; ``params`` sets keys of it (spec units); ``bounds``
@@ -643,10 +650,12 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
     >>> round(result.parameters["alpha"], 6)
     0.2
     """
-    if metric not in METRICS:
-        from .params import unknown
+    from .params import unknown
 
+    if metric not in METRICS:
         raise BrdftabError(unknown("metric", metric, METRICS))
+    if loss not in LOSSES:
+        raise BrdftabError(unknown("loss", loss, LOSSES))
     if isinstance(table, (str, Path)):
         from . import open as open_table
 
@@ -678,7 +687,8 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
     floor = LOG_FLOOR * float(np.median(positive)) if positive.size else 1e-12
 
     scale = f_scale if f_scale is not None else (0.1 if metric == "log" else None)
-    problem = _Problem(start_table, str(folder), keys, lo, hi, metric, floor, scale, lam, source.samples(search_nodes))
+    problem = _Problem(start_table, str(folder), keys, lo, hi, metric, floor, scale, lam, source.samples(search_nodes),
+                       loss)
     points = [x0]
     if starts > 1:
         from scipy.stats import qmc
