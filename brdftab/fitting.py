@@ -398,7 +398,7 @@ class FitResult:
         if description:
             lines.append(f"description = {json.dumps(description, ensure_ascii=False)}")
             lines.append("")
-        _toml_table(lines, "model", self.model_table)
+        _toml_table(lines, "model", self.model_table, model=True)
         lines.append("")
         _toml_table(lines, "grid", self.grid_table)
         lines += ["", "[[output]]", f"path = {json.dumps(output, ensure_ascii=False)}", ""]
@@ -423,21 +423,20 @@ def _toml_scalar(v) -> str:
     return str(v)
 
 
-def _is_table(v) -> bool:
-    return isinstance(v, dict) and "name" in v
-
-
-def _toml_table(lines, header, table, array=False) -> None:
+def _toml_table(lines, header, table, array=False, model=False) -> None:
+    """``table`` as a TOML table ``[header]``; in a model's table the values of kind ``brdf``
+    and ``brdfs`` (its terms) become sub-tables, everything else an inline value."""
     lines.append(f"[[{header}]]" if array else f"[{header}]")
+    kinds = {k: p.kind for k, p in _params_of(table).items()} if model else {}
     subs = []
     for k, v in table.items():
-        if _is_table(v) or (isinstance(v, list) and v and all(map(_is_table, v))):
+        if kinds.get(k) in ("brdf", "brdfs"):
             subs.append((k, v))
         else:
             lines.append(f"{k} = {_toml_scalar(v)}")
     for k, v in subs:
         for item in (v if isinstance(v, list) else [v]):
-            _toml_table(lines, f"{header}.{k}", item, array=isinstance(v, list))
+            _toml_table(lines, f"{header}.{k}", item, array=isinstance(v, list), model=True)
 
 
 # --- the fit ---------------------------------------------------------------------------------
@@ -745,6 +744,8 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
 
     try:
         grid_cfg, grid_error = source.grid_table(fitted), ""
+        if lam is not None:  # a spectral table: its wavelengths, written exactly
+            grid_cfg["wavelengths_nm"] = [float(x) for x in lam]
     except BrdftabError as exc:
         grid_cfg, grid_error = None, str(exc)
     result = FitResult(

@@ -303,3 +303,18 @@ def test_the_reported_uncertainties_are_the_spread_of_repeated_fits():
         reported.append([r.uncertainties["alpha"], r.uncertainties["n"]])
     ratio = np.std(fitted, axis=0, ddof=1) / np.mean(reported, axis=0)
     assert np.all((ratio > 0.65) & (ratio < 1.5)), ratio
+
+
+def test_a_spectral_fit_writes_its_wavelengths_and_material(tmp_path):
+    """A spectral table (aluminium's optical constants, from the BRDF object rather than a spec):
+    the spec keeps the material inline and the table's wavelengths, and tabulates the fit exactly."""
+    truth = models.create("microfacet", alpha=0.25, fresnel="conductor", material="Al")
+    lam = np.array([450.0, 550.0, 650.0])
+    table = tabulate(truth, grid_from_config(GRID), lam)
+    result = brdftab.fit(table, truth, ["alpha"], params={"alpha": 0.5}, starts=2, albedo=False)
+    assert result.parameters["alpha"] == pytest.approx(0.25, rel=1e-6)
+    (tmp_path / "fit.toml").write_text(result.spec_text("fit.nc"))
+    spec = brdftab.load_spec(tmp_path / "fit.toml")
+    assert np.array_equal(spec.wavelengths, lam) and spec.grid.equals(table.grid)
+    assert np.array_equal(tabulate(spec.model, spec.grid, spec.wavelengths).values,
+                          tabulate(result.model, table.grid, lam).values)
