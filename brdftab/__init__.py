@@ -12,6 +12,7 @@ Script API::
     ggx = brdftab.models.create("microfacet", alpha=0.3)    # a model by name
     f = ggx.eval(wi, wo)                                    # [..., n_channels] in 1/sr
     brdftab.save(ggx, "ggx.nc", grid=brdftab.grids.merl_grid())
+    fit = brdftab.fit(table, "microfacet", free=["alpha"], params={"alpha": 0.5})   # a model fitted to a table
 """
 
 from __future__ import annotations
