@@ -506,6 +506,24 @@ def _all_keys(table: dict, prefix: str = "") -> list:
     return out
 
 
+def _resolve_files(table: dict, folder: Path) -> None:
+    """Make the file values of a ``[model]`` table (a material's CSV, a coefficient file)
+    absolute, as the spec loader resolves them against the start file's folder, so that the
+    fitted spec reads the same files wherever it is written."""
+    from .params import KINDS
+
+    for key, p in _params_of(table).items():
+        value = table.get(key)
+        if p.kind == "brdfs" and isinstance(value, list):
+            for sub in value:
+                _resolve_files(sub, folder)
+        elif p.kind == "brdf" and isinstance(value, dict):
+            _resolve_files(value, folder)
+        elif isinstance(value, str) and hasattr(KINDS.get(p.kind), "from_spec"):
+            resolved = p.kind_object.from_spec(p, value, folder)
+            table[key] = str(Path(resolved).resolve()) if resolved != value else value
+
+
 def _suggest(word, choices) -> str:
     from .params import suggest
 
@@ -728,6 +746,7 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
         sd = np.full(n_par, np.inf)
         corr = np.full((n_par, n_par), np.nan)
     fitted, fitted_table = problem.model_at(x)
+    _resolve_files(fitted_table, folder)
 
     # residual per θi bin (over the refine samples)
     per_sample = np.zeros(mask.shape)

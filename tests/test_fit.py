@@ -318,3 +318,23 @@ def test_a_spectral_fit_writes_its_wavelengths_and_material(tmp_path):
     assert np.array_equal(spec.wavelengths, lam) and spec.grid.equals(table.grid)
     assert np.array_equal(tabulate(spec.model, spec.grid, spec.wavelengths).values,
                           tabulate(result.model, table.grid, lam).values)
+
+
+def test_a_fitted_spec_written_elsewhere_reads_the_start_s_files(tmp_path):
+    """The start file names a material CSV relative to its folder; the fitted spec, written in
+    another folder, reads the same file."""
+    start = tmp_path / "start"
+    start.mkdir()
+    (start / "nk.csv").write_text("400,0.5,4.0\n550,0.9,5.0\n700,1.5,6.0\n")
+    (start / "start.toml").write_text('[model]\nname = "microfacet"\nalpha = 0.5\nfresnel = "conductor"\n'
+                                      'material = "nk.csv"\n')
+    truth = brdftab.spec.build_model({"name": "microfacet", "alpha": 0.2, "fresnel": "conductor",
+                                      "material": str(start / "nk.csv")}, "model", tmp_path / "x.toml")
+    brdftab.save(tabulate(truth, grid_from_config(GRID), [450.0, 600.0]), tmp_path / "t.nc")
+    r = cli("fit", tmp_path / "t.nc", "--model", start / "start.toml", "--free", "alpha", "--starts", "2",
+            "-o", tmp_path / "out" / "fit.toml")
+    assert r.exit_code == 0, r.output
+    spec = brdftab.load_spec(tmp_path / "out" / "fit.toml")
+    assert spec.model.parameters["alpha"] == pytest.approx(0.2, rel=1e-6)
+    wi, wo, lam = [0, 0, 1], [0.6, 0, 0.8], [450.0, 600.0]  # the CSV's n, k: the truth's f
+    assert np.allclose(spec.model.eval(wi, wo, lam), truth.eval(wi, wo, lam), rtol=1e-5)
