@@ -12,6 +12,7 @@ Script API::
     ggx = brdftab.models.create("microfacet", alpha=0.3)    # a model by name
     f = ggx.eval(wi, wo)                                    # [..., n_channels] in 1/sr
     brdftab.save(ggx, "ggx.nc", grid=brdftab.grids.merl_grid())
+    fit = brdftab.fit(table, "microfacet", free=["alpha"], params={"alpha": 0.5})   # a model fitted to a table
 """
 
 from __future__ import annotations
@@ -20,12 +21,12 @@ import importlib
 
 from ._version import __version__
 
-__all__ = ["__version__", "BRDF", "BrdftabError", "Table", "from_spec", "geometry", "grids", "load_spec", "models",
+__all__ = ["__version__", "BRDF", "BrdftabError", "Table", "fit", "from_spec", "geometry", "grids", "load_spec", "models",
            "open", "save", "tabulate"]
 
 #: Names imported on first use (PEP 562): ``import brdftab`` stays light, so the command line
 #: installs its signal handlers before numpy, xarray and netCDF4 load.
-_LAZY = {"BRDF": ".brdf", "BrdftabError": ".errors", "Table": ".table", "tabulate": ".table"}
+_LAZY = {"BRDF": ".brdf", "BrdftabError": ".errors", "Table": ".table", "tabulate": ".table", "fit": ".fitting"}
 
 
 def __getattr__(name):

@@ -1,6 +1,6 @@
 """The ``brdftab`` command line.
 
-Verbs: ``tabulate``, ``convert``, ``eval``, ``info``, ``models``, ``plot``. Angles on the command line
+Verbs: ``tabulate``, ``convert``, ``eval``, ``info``, ``models``, ``plot``, ``fit``. Angles on the command line
 are in degrees (``--wi-deg θ,φ``). Bad input — in a file or on the command line — prints one
 line ``brdftab: error: …`` on stderr and exits with code 2, never a traceback (``--debug``,
 before or after the verb, shows it). A refused validation exits with 1 where documented,
@@ -29,6 +29,7 @@ import numpy as np
 
 from . import _atomic, _signals
 from ._version import __version__
+from .cli_fit import fit
 from .cli_plot import plot
 from .cli_validate import check_options, cli_layer, engine_options, origin_option, validate
 from .errors import BrdftabError, printable as _printable, shown
@@ -792,6 +793,7 @@ def formats_(name, as_json):
 
 main.add_command(_runs_on(".pipeline", ".formats", ".checks")(validate))
 main.add_command(_runs_on(".plot", ".spec", ".formats", ".integrate")(plot))
+main.add_command(_runs_on(".fitting", ".spec", ".formats", ".integrate", ".batch")(fit))
 
 if __name__ == "__main__":  # pragma: no cover
     main()

@@ -187,3 +187,25 @@ def test_the_blocks_of_one_big_table_are_tabulated_on_the_cluster(tmp_path, sche
     blocks = [t for t in stream.data if str(t.get("key", "")).startswith("block_values")]
     assert len(blocks) > 4 and len({t["worker"] for t in blocks}) == 2  # both workers took blocks
     _same_files(serial, far)
+
+
+def test_the_starts_of_a_fit_run_on_the_cluster(scheduler):
+    """brdftab.fit with an engine: each start is a task on the workers; the fit equals the
+    serial one bit for bit."""
+    from distributed import get_task_stream
+
+    import brdftab
+    from brdftab.batch import Engine
+    from brdftab.grids import grid_from_config
+    from brdftab.table import tabulate
+
+    table = tabulate(brdftab.models.create("microfacet", alpha=0.3, fresnel="schlick", f0=0.5),
+                     grid_from_config({"type": "rusinkiewicz", "n_theta_h": 8, "n_theta_d": 6, "n_phi_d": 6}))
+    args = dict(params={"alpha": 0.6, "fresnel": "schlick", "f0": 0.2}, starts=6, albedo=False)
+    serial = brdftab.fit(table, "microfacet", ["alpha", "f0"], **args)
+    with Engine(scheduler=scheduler) as engine, get_task_stream(engine.client) as stream:
+        far = brdftab.fit(table, "microfacet", ["alpha", "f0"], engine=engine, **args)
+    starts = [t for t in stream.data if str(t.get("key", "")).startswith("_search_one")]
+    assert len(starts) == 6 and len({t["worker"] for t in starts}) == 2
+    assert far.parameters == serial.parameters and far.start_results == serial.start_results
+    assert far.parameters["alpha"] == pytest.approx(0.3, rel=1e-6)

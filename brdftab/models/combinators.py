@@ -35,7 +35,9 @@ class Sum(Model):
     name = "sum"
     summary = "Sum of terms, f = Σ f_k."
     reference = "Nicodemus1977"
-    params = (Param("terms", "brdfs", "The BRDFs to add ([[model.terms]] tables in a spec).", units=""),)
+    params = (Param("terms", "brdfs", "The BRDFs to add ([[model.terms]] tables in a spec); a term's key, numbered "
+                    "from 0, is terms.0.KEY, terms.1.KEY, … (brdftab fit --free; in a [sweep] model.terms.1.KEY).",
+                    units=""),)
 
     def _setup(self, terms):
         self.terms = terms
