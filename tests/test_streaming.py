@@ -298,9 +298,10 @@ def test_convert_copies_a_table_over_budget_block_by_block(tmp_path, monkeypatch
     from brdftab.errors import ValidationError
 
     monkeypatch.delenv("BRDFTAB_MEMORY", raising=False)
-    (tmp_path / "src").mkdir()
-    src = _run(tmp_path / "src", monkeypatch, None, dtype="float64").written[0]
-    monkeypatch.setenv("BRDFTAB_MEMORY", "1M")
+    spec = _spec(tmp_path)
+    src = tmp_path / "src.nc"
+    brdftab.save(brdftab.tabulate(spec.model, spec.grid, progress=False), src)
+    monkeypatch.setenv("BRDFTAB_MEMORY", "3M")  # just below what the 55 296 samples take in memory
     assert brdftab.open(src).over_budget
     loads = []
     monkeypatch.setattr(brdftab.table.Table, "values", property(lambda self: loads.append(1) or self._values))
@@ -308,13 +309,16 @@ def test_convert_copies_a_table_over_budget_block_by_block(tmp_path, monkeypatch
     orig = nc_mod.NetcdfStream.write
     monkeypatch.setattr(nc_mod.NetcdfStream, "write", lambda self, key, block: (writes.append(key),
                                                                                 orig(self, key, block))[1])
-    result = convert(src, tmp_path / "copy.nc", options={"dtype": "float32"}, progress=False)
-    assert loads == [] and len(writes) > 4  # nothing read the samples whole; many blocks
+    # (the integrals of the energy, albedo and tabulation checks over budget are tested above;
+    # off here, they would be most of the run)
+    quiet = {name: {"level": "off"} for name in ("energy", "albedo", "tabulation")}
+    result = convert(src, tmp_path / "copy.nc", options={"dtype": "float32"}, progress=False, checks=quiet)
+    assert loads == [] and len(writes) > 1  # nothing read the samples whole; several blocks
     with xr.open_dataset(src) as a, xr.open_dataset(tmp_path / "copy.nc") as b:
         assert b["brdf"].dtype == np.float32
         assert np.array_equal(a["brdf"].values.astype(np.float32), b["brdf"].values)
         assert b.attrs["validation_passed"] == 1 and b.attrs["converted_from"] == src.name
-        assert b.attrs["input_validation_passed"] == 1 and "albedo" in b.variables
+        assert b.attrs["input_validation_passed"] == 1
     assert result.report.passed and not result.resampled
     # a table whose samples fail a check (energy: albedo 1.5): refused, nothing is left
     from brdftab.models import create
