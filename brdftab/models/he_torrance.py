@@ -89,7 +89,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 from scipy.special import erf, erfc, gammaln
 
 from .._jit import device
@@ -988,6 +987,8 @@ class ModifiedHeTorrance(_HTSGBase):
         if self._spline is None:
             step = min(self.width_theta / 16.0, np.radians(0.05))
             nodes = np.linspace(0.0, 0.5 * np.pi, int(np.ceil(0.5 * np.pi / step)) + 1)
+            from scipy.interpolate import CubicSpline  # (on first use: scipy.interpolate takes 0.15 s to import)
+
             self._spline = CubicSpline(nodes, self._phi_integral * _theta_integral(nodes, self.width_theta))
         return self._spline(np.clip(np.asarray(theta_i, float), 0.0, 0.5 * np.pi))
 

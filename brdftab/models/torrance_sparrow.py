@@ -47,7 +47,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from .._jit import device
 from ..brdf import Model
@@ -93,6 +92,8 @@ class GaussianAngle(C.Distribution):
         self.norm = float(2 * np.pi * np.sum(np.exp(-(self.c * a) ** 2) * np.cos(a) * np.sin(a) * w))
         # projected area P(θ) = ∫ D(h) max(0, ω·h) dω_h on a θ table (Smith Λ = P/cosθ − 1)
         self._theta = np.linspace(0.0, HALF_PI, 257)
+        from scipy.interpolate import CubicSpline  # (here: scipy.interpolate takes 0.2 s to import)
+
         self._proj = CubicSpline(self._theta, self._projected_area(self._theta, a, w))
         # inverse CDF of the facet angle for sampling (density D cosα over solid angle)
         pdf = np.exp(-(self.c * a) ** 2) * np.cos(a) * np.sin(a) * w * 2 * np.pi / self.norm
