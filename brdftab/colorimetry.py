@@ -297,52 +297,14 @@ def luminance_weights(wavelengths, colorimetry: Colorimetry | None = None) -> np
     return y / y.sum() if y.sum() > 0 else np.full(y.size, 1.0 / y.size)
 
 
-class ColourView(BRDF):
-    """A spectral BRDF seen in colour: ``eval`` returns its spectrum at ``wavelengths`` [nm]
-    converted by ``colorimetry`` (channels R, G, B or X, Y, Z). Not reciprocal-breaking: a
-    fixed linear combination of wavelengths keeps every symmetry of the spectral BRDF."""
+class _View(BRDF):
+    """A BRDF seen through a fixed linear map of its channels: its symmetries, name, origin,
+    parameters and lobes are the base's (a fixed combination of channels keeps every symmetry);
+    energy conservation is not declared (a channel can exceed every input channel's albedo)."""
 
-    def __init__(self, base: BRDF, wavelengths, colorimetry: Colorimetry | None = None):
-        if not base.spectral and getattr(base.layout, "sampled", None) is None:
-            raise ParameterError("colourspace", f"'{base.name}' is not spectral: nothing to convert")
+    def __init__(self, base: BRDF, layout: Layout):
         self.base = base
-        self.colorimetry = colorimetry or DEFAULT
-        self.wavelengths_nm = np.asarray(wavelengths, float)
-        self._m = self.colorimetry.matrix(self.wavelengths_nm)
-        self.layout = Layout(self.colorimetry.channels)
-        self.name = base.name
-        self.isotropic, self.reciprocal, self.origin = base.isotropic, base.reciprocal, base.origin
-        self.energy_conserving = False  # a colour channel can exceed every wavelength's albedo
-
-    @property
-    def parameters(self):
-        return dict(getattr(self.base, "parameters", {}))
-
-    def describe(self) -> str:
-        return f"{self.base.describe()} in {self.colorimetry.describe()}"
-
-    @property
-    def lobe_width(self):
-        return self.base.lobe_width
-
-    @property
-    def lobe_axes(self):
-        return self.base.lobe_axes
-
-    def _eval(self, wi, wo, lam, n):
-        return np.asarray(self.base.eval(wi, wo, self.wavelengths_nm, assume_unit=True), float) @ self._m
-
-
-class XYZView(BRDF):
-    """An RGB (linear sRGB) or grey BRDF seen in CIE XYZ through colour-science's
-    ``RGB_to_XYZ`` (the sRGB colourspace and its D65 white; a grey f is the RGB (f, f, f)), or
-    its Y alone (``luminance_only``): what a writer that stores XYZ writes of it."""
-
-    def __init__(self, base: BRDF, luminance_only: bool = False):
-        if base.spectral or base.channels not in (("R", "G", "B"), ("mono",)):
-            raise ParameterError("channels", f"'{base.name}' is not RGB or grey: nothing to convert to XYZ")
-        self.base, self.luminance_only = base, luminance_only
-        self.layout = Layout(("mono",) if luminance_only else ("X", "Y", "Z"))
+        self.layout = layout
         self.name = base.name
         self.isotropic, self.reciprocal, self.origin = base.isotropic, base.reciprocal, base.origin
         self.energy_conserving = False
@@ -351,9 +313,6 @@ class XYZView(BRDF):
     def parameters(self):
         return dict(getattr(self.base, "parameters", {}))
 
-    def describe(self) -> str:
-        return f"{self.base.describe()} in CIE XYZ (from linear sRGB)"
-
     @property
     def lobe_width(self):
         return self.base.lobe_width
@@ -361,6 +320,41 @@ class XYZView(BRDF):
     @property
     def lobe_axes(self):
         return self.base.lobe_axes
+
+
+class ColourView(_View):
+    """A spectral BRDF seen in colour: ``eval`` returns its spectrum at ``wavelengths`` [nm]
+    converted by ``colorimetry`` (channels R, G, B or X, Y, Z). Not reciprocal-breaking: a
+    fixed linear combination of wavelengths keeps every symmetry of the spectral BRDF."""
+
+    def __init__(self, base: BRDF, wavelengths, colorimetry: Colorimetry | None = None):
+        if not base.spectral and getattr(base.layout, "sampled", None) is None:
+            raise ParameterError("colourspace", f"'{base.name}' is not spectral: nothing to convert")
+        self.colorimetry = colorimetry or DEFAULT
+        super().__init__(base, Layout(self.colorimetry.channels))
+        self.wavelengths_nm = np.asarray(wavelengths, float)
+        self._m = self.colorimetry.matrix(self.wavelengths_nm)
+
+    def describe(self) -> str:
+        return f"{self.base.describe()} in {self.colorimetry.describe()}"
+
+    def _eval(self, wi, wo, lam, n):
+        return np.asarray(self.base.eval(wi, wo, self.wavelengths_nm, assume_unit=True), float) @ self._m
+
+
+class XYZView(_View):
+    """An RGB (linear sRGB) or grey BRDF seen in CIE XYZ through colour-science's
+    ``RGB_to_XYZ`` (the sRGB colourspace and its D65 white; a grey f is the RGB (f, f, f)), or
+    its Y alone (``luminance_only``): what a writer that stores XYZ writes of it."""
+
+    def __init__(self, base: BRDF, luminance_only: bool = False):
+        if base.spectral or base.channels not in (("R", "G", "B"), ("mono",)):
+            raise ParameterError("channels", f"'{base.name}' is not RGB or grey: nothing to convert to XYZ")
+        super().__init__(base, Layout(("mono",) if luminance_only else ("X", "Y", "Z")))
+        self.luminance_only = luminance_only
+
+    def describe(self) -> str:
+        return f"{self.base.describe()} in CIE XYZ (from linear sRGB)"
 
     def _eval(self, wi, wo, lam, n):
         xyz = rgb_to_xyz(np.asarray(self.base.eval(wi, wo, assume_unit=True), float), self.base.channels)

@@ -323,6 +323,29 @@ def stored(fmt: FileFormat, payload, options: dict | None = None):
     return fmt.stored(payload, **dict(options or {}))
 
 
+def averaged(brdf, n_phi_h: int = 0, symmetrize: bool = False):
+    """``(source, provenance)`` a writer of an isotropic, reciprocal-folded format tabulates:
+    ``brdf`` averaged over ``n_phi_h`` rotations about the normal (0: not) and/or over swapping
+    wi and wo (``symmetrize``), with what it did recorded (``phi_h_averaged``,
+    ``symmetrized``) beside a source table's spec provenance. An average of measured data is
+    measured data (it keeps ``brdf``'s origin)."""
+    from ..models.combinators import Average
+    from ..table import Table
+
+    source, provenance = brdf, {}
+    if isinstance(brdf, Table):
+        provenance.update({k: v for k, v in brdf.ds.attrs.items() if k in ("spec_sha256", "spec_file", "comment")})
+    if n_phi_h:
+        source = Average(term=source, rotations=n_phi_h)
+        provenance["phi_h_averaged"] = n_phi_h
+    if symmetrize:
+        source = Average(term=source, swap=True)
+        provenance["symmetrized"] = 1
+    if source is not brdf:
+        source.origin = getattr(brdf, "origin", "analytic")
+    return source, provenance
+
+
 def cast_samples(table, dtype):
     """``table`` with its samples as a file of storage type ``dtype`` holds them: rounded to
     ``dtype`` (values beyond its range become ±inf) and held in the table's own type. The table

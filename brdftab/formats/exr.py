@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
+from ..colorimetry import PARAMS as COLOUR_PARAMS
 from ..channels import Layout
 from ..params import Param
 from ..errors import BrdftabError, FormatError, ParameterError, shown
@@ -163,12 +164,6 @@ def _slice_grid(base, phi):
 
 # --------------------------------------------------------------------------------------------
 # Writing
-
-
-def _colour_params():
-    from ..colorimetry import PARAMS
-
-    return tuple(p for p in PARAMS if p.name != "wavelengths_nm")
 
 
 def _number_text(x: float) -> str:
@@ -735,7 +730,7 @@ register(FileFormat(
                   "grid).", units="deg", default=None),
             Param("colour", "choice", "Spectral tables: rgb (linear sRGB through colour-science, recorded in the "
                   "header) or spectral (one channel per wavelength, e.g. 550nm).", default="rgb", choices=_COLOUR),
-            ) + _colour_params(),
+            ) + tuple(p for p in COLOUR_PARAMS if p.name != "wavelengths_nm"),
     colour=True,
     precision=1e-6,  # float32 pixels
     stored=stored_exr,  # the pixels are float32, a spectral table in colour

@@ -33,13 +33,13 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
+from ..colorimetry import PARAMS as COLOUR_PARAMS
 from ..channels import Layout
 from ..errors import BrdftabWarning, FormatError, ParameterError
 from ..grids import SphericalGrid
 from ..grids.axis import HALF_PI, uniform_values
-from ..models.combinators import Average
 from ..params import Param
-from . import FileFormat, cast_samples, register
+from . import FileFormat, averaged, cast_samples, register
 from .merl import _phi_h_samples
 
 __all__ = ["read_mbsdf", "write_mbsdf", "prepare_mbsdf", "mbsdf_grid", "MAGIC", "REFLECTION", "LEGACY",
@@ -311,17 +311,7 @@ def prepare_mbsdf(brdf, grid, res_theta=None, res_phi=None, phi_h_average=False,
     if not brdf.reciprocal and not symmetrize:
         raise FormatError(f"'{brdf.name}' is not reciprocal and MDL renderers symmetrize .mbsdf data when they load "
                           "it; pass symmetrize = true to write (f(wi, wo) + f(wo, wi)) / 2")
-    source, provenance = brdf, {}
-    if isinstance(brdf, Table):
-        provenance.update({k: v for k, v in brdf.ds.attrs.items() if k in ("spec_sha256", "spec_file", "comment")})
-    if n_phi_h:
-        source = Average(term=source, rotations=n_phi_h)
-        provenance["phi_h_averaged"] = n_phi_h
-    if symmetrize:
-        source = Average(term=source, swap=True)
-        provenance["symmetrized"] = 1
-    if source is not brdf:  # an average of measured data is measured data
-        source.origin = getattr(brdf, "origin", "analytic")
+    source, provenance = averaged(brdf, n_phi_h, symmetrize)
     if colour_note:
         provenance["mbsdf_colour"] = colour_note
     return tabulate(source, target, provenance=provenance or None)
@@ -330,12 +320,6 @@ def prepare_mbsdf(brdf, grid, res_theta=None, res_phi=None, phi_h_average=False,
 def stored_mbsdf(table, **options):
     """The table as the file holds it: samples rounded to float32."""
     return cast_samples(table, np.float32)
-
-
-def _colour_params():
-    from ..colorimetry import PARAMS
-
-    return PARAMS
 
 
 register(FileFormat(
@@ -361,7 +345,7 @@ register(FileFormat(
         Param("phi_h_average", "count", "Write the average of an anisotropic BRDF over rotations about the normal: "
               "true (36 rotations) or a count.", default=False, minimum=2, maximum=3600),
         Param("symmetrize", "bool", "Write (f(wi, wo) + f(wo, wi)) / 2 of a non-reciprocal BRDF.", default=False),
-    ) + _colour_params(),
+    ) + COLOUR_PARAMS,
     precision=6e-8,  # float32 samples: 2**-24 relative, kept by interpolation of positive values
     stored=stored_mbsdf,
 ))

@@ -33,12 +33,12 @@ from pathlib import Path
 import numpy as np
 import xarray as xr
 
-from ..models.combinators import Average
+from ..colorimetry import PARAMS as COLOUR_PARAMS
 from ..channels import Layout
 from ..params import Kind, Param, register_kind
 from ..errors import BrdftabWarning, FormatError, ParameterError
 from ..grids import merl_grid
-from . import FileFormat, read_head, register
+from . import FileFormat, averaged, read_head, register
 
 __all__ = ["read_merl", "write_merl", "merl_raw", "prepare_merl", "SCALE", "DIMS", "FILE_SIZE", "CORRECTION",
            "MISSING_RAW"]
@@ -297,24 +297,13 @@ def prepare_merl(brdf, grid, sample_position=None, below_horizon="zero", phi_h_a
     _check_channels(brdf)
     if isinstance(brdf, Table) and target.equals(brdf.grid) and not n_phi_h and not symmetrize:
         return _clamp_negatives(_as_rgb(brdf), negative)
-    source = brdf
-    provenance = {}
-    if isinstance(brdf, Table):
-        provenance.update({k: v for k, v in brdf.ds.attrs.items() if k in ("spec_sha256", "spec_file", "comment")})
     if not brdf.isotropic and not n_phi_h:
         raise FormatError(f"MERL files are isotropic and '{brdf.name}' is anisotropic (phi_h would be dropped); "
                           "pass phi_h_average = true (or a number of phi_h samples) to write its average over phi_h")
     if not brdf.reciprocal and not symmetrize:
         raise FormatError(f"MERL files fold phi_d by reciprocity (phi_d ~ phi_d + pi) and '{brdf.name}' is not "
                           "reciprocal; pass symmetrize = true to write (f(wi, wo) + f(wo, wi)) / 2")
-    if n_phi_h:
-        source = Average(term=source, rotations=n_phi_h)
-        provenance["phi_h_averaged"] = n_phi_h
-    if symmetrize:
-        source = Average(term=source, swap=True)
-        provenance["symmetrized"] = 1
-    if source is not brdf:  # an average of measured data is measured data
-        source.origin = getattr(brdf, "origin", "analytic")
+    source, provenance = averaged(brdf, n_phi_h, symmetrize)
     table = _clamp_negatives(_as_rgb(tabulate(source, target, provenance=provenance or None)), negative)
     missing = None
     if isinstance(brdf, Table):
@@ -362,12 +351,6 @@ def _clamp_negatives(table, negative: str):
     return out
 
 
-def _colour_params():
-    from ..colorimetry import PARAMS
-
-    return PARAMS
-
-
 def _check_channels(brdf) -> None:
     if brdf.spectral:
         raise FormatError(f"MERL files store R, G, B and '{brdf.name}' is spectral")
@@ -411,6 +394,6 @@ register(FileFormat(
         Param("symmetrize", "bool", "Write (f(wi, wo) + f(wo, wi)) / 2 of a non-reciprocal BRDF.", default=False),
         Param("negative", "choice", "Negative samples that are data (measurement noise): written as 0, or as they "
               "are (MERL reads them as missing).", default="zero", choices=_NEGATIVE),
-    ) + _colour_params(),
+    ) + COLOUR_PARAMS,
     precision=1e-12,  # float64, scaled per channel
 ))

@@ -42,6 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..colorimetry import PARAMS as COLOUR_PARAMS
 from ..errors import BrdftabWarning, FormatError, ParameterError
 from ..params import Param
 from . import FileFormat, register
@@ -613,12 +614,6 @@ def write_zemax(table, path, symmetry="Asymmetrical", spectral_content="auto", i
             fh.write("DataEnd\n")
 
 
-def _colour_params():
-    from ..colorimetry import PARAMS
-
-    return PARAMS
-
-
 register(FileFormat(
     name="zemax",
     extensions=(".bsdf",),
@@ -647,6 +642,6 @@ register(FileFormat(
               "0..355, or 0..180 PlaneSymmetrical).", default=None, minimum=0.0, maximum=360.0),
         Param("radials_deg", "floats", "Scatter radial angles from the mirror direction in degrees (default 0..9 by "
               "1, 10..28 by 2, 30..180 by 5).", default=None, minimum=0.0, maximum=180.0),
-    ) + _colour_params(),
+    ) + COLOUR_PARAMS,
     precision=PRECISION,
 ))
