@@ -43,6 +43,11 @@ def prange(*args):
     return range(*args)
 
 
+#: Held while a function's globals are made numba's (re-entrant: a kernel's device functions
+#: resolve theirs inside).
+_RESOLVING = threading.RLock()
+
+
 class _Lazy:
     """A function compiled on its first call, so that importing the module that defines it
     does not import numba. A kernel's module-level ``prange`` and the :func:`device` functions
@@ -58,16 +63,20 @@ class _Lazy:
 
     def compiled(self):
         if self._compiled is None:
-            import numba
+            with _RESOLVING:  # threads calling a kernel first at once (parallel_rows) wait here
+                if self._compiled is None:
+                    import numba
 
-            self._compiled = numba.njit(**self.options)(self.py_func)  # compiles at its first call
-            g = self.py_func.__globals__
-            for name in self.py_func.__code__.co_names:  # the globals the function reads
-                value = g.get(name)
-                if isinstance(value, _Lazy):
-                    g[name] = value.compiled()
-                elif value is prange:
-                    g[name] = numba.prange
+                    # numba reads the globals when it compiles (at the first call): the device
+                    # functions must be numba's before any thread can call the dispatcher
+                    g = self.py_func.__globals__
+                    for name in self.py_func.__code__.co_names:  # the globals the function reads
+                        value = g.get(name)
+                        if isinstance(value, _Lazy):
+                            g[name] = value.compiled()
+                        elif value is prange:
+                            g[name] = numba.prange
+                    self._compiled = numba.njit(**self.options)(self.py_func)  # compiles at its first call
         return self._compiled
 
     def serial(self):

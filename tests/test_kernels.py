@@ -568,3 +568,52 @@ def test_a_model_pickles_after_its_kernel_was_built(name, values):
     back = pickle.loads(pickle.dumps(m))
     np.testing.assert_array_equal(back.eval(wi, wo), f)
     assert back.kernel(None, 1) is not None
+
+
+# a kernel and the device function it calls, compiled in this test only (module level: numba
+# reads a kernel's device functions from its module's globals)
+from brdftab._jit import device as _device, kernel as _kernel  # noqa: E402
+
+
+@_device
+def _race_twice(x):
+    return 2.0 * x
+
+
+@_kernel
+def _race_kernel(a, out):
+    for i in range(a.shape[0]):
+        out[i] = _race_twice(a[i])
+
+
+_RACE_TWICE_LAZY = _race_twice  # the lazy wrapper, before any compile swaps the global
+
+
+def test_a_kernel_is_published_only_with_its_device_functions_compiled(monkeypatch):
+    """A kernel's dispatcher is created (and handed to any thread) only after the device
+    functions it calls are numba's in its module: threads that called a kernel for the first
+    time at once (parallel_rows) could take a dispatcher whose globals were still the lazy
+    wrappers and fail with 'Untyped global name' (seen in CI: unravel4 in the Rusinkiewicz
+    direction loop)."""
+    import numba
+
+    seen = []
+    real = numba.njit
+
+    def spy(*args, **options):
+        decorate = real(*args, **options)
+
+        def wrap(f):
+            if f is _race_kernel.py_func:
+                seen.append(type(f.__globals__["_race_twice"]).__name__)
+            return decorate(f)
+        return wrap
+
+    monkeypatch.setitem(globals(), "_race_twice", _RACE_TWICE_LAZY)
+    monkeypatch.setattr(_RACE_TWICE_LAZY, "_compiled", None)
+    monkeypatch.setattr(_race_kernel, "_compiled", None)
+    monkeypatch.setattr(numba, "njit", spy)
+    out = np.empty(5)
+    _race_kernel(np.arange(5.0), out)
+    assert seen == ["CPUDispatcher"]
+    assert np.array_equal(out, 2.0 * np.arange(5.0))
