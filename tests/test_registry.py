@@ -107,3 +107,12 @@ def test_checks_are_registered_parts():
     t = brdftab.tabulate(models.create("lambert", albedo=0.5), brdftab.grids.RusinkiewiczGrid(4, 4, 4),
                          progress=False)
     assert run_checks(t).passed
+
+
+def test_every_format_says_what_quantity_it_holds():
+    """`brdftab formats NAME` (the format's description) says which quantity its files hold:
+    f_r, or what of it (RGL: f_r cosθo 4σ/D at its warped samples)."""
+    from brdftab import formats
+
+    for name in formats.usable():
+        assert "f_r" in formats.FORMATS[name].description, name

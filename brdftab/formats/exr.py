@@ -718,7 +718,8 @@ def _table(path, hdr, values, th, td, phi, layout, warp=None):
 register(FileFormat(
     name="exr",
     extensions=(".exr",),
-    description="OpenEXR theta_h x theta_d float32 slices, one part per phi_d (isotropic Rusinkiewicz grids)",
+    description="OpenEXR theta_h x theta_d float32 slices, one part per phi_d (isotropic Rusinkiewicz grids): "
+                "f_r [sr-1] pixels, no cosine, not a reflectance factor",
     read=read_exr,
     write=write_exr,
     magic=(MAGIC,),

@@ -376,7 +376,8 @@ def _as_rgb(table):
 register(FileFormat(
     name="merl",
     extensions=(".binary",),
-    description="MERL BRDF database binary (90 x 90 x 180 RGB float64, isotropic, reciprocal)",
+    description="MERL BRDF database binary (90 x 90 x 180 RGB float64, isotropic, reciprocal): f_r [sr-1] "
+                "divided by MERL's channel scales (1, 1.15, 1.66)/1500, no cosine; negative = no measurement",
     read=read_merl,
     write=write_merl,
     sniff=sniff,

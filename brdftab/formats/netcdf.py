@@ -276,7 +276,8 @@ def stored_netcdf(table, dtype: str = "float64", **_):
 _FORMAT = register(FileFormat(
     name="netcdf",
     extensions=(".nc", ".nc4", ".netcdf"),
-    description="netCDF-4 table with CF-style units and brdftab provenance (any grid)",
+    description="netCDF-4 table with CF-style units and brdftab provenance (any grid): f_r [sr-1], not "
+                "multiplied by a cosine, not a reflectance factor (the variable's quantity attribute says so)",
     read=read_netcdf,
     write=write_netcdf,
     magic=MAGIC,

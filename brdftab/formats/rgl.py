@@ -72,7 +72,8 @@ register(FileFormat(
     name="rgl",
     extensions=(".bsdf",),
     description="Mitsuba 3 / RGL tabulated BSDF (tensor file for the 'measured' plugin; RGB or spectral, "
-                "isotropic or anisotropic)",
+                "isotropic or anisotropic): f_r cos(theta_o) 4 sigma(wi) / D(m) at the warped samples, as "
+                "Mitsuba's reader expects; read back as f_r [sr-1]",
     read=read_rgl,
     write=write_rgl,
     magic=(MAGIC,),

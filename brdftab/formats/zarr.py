@@ -379,7 +379,7 @@ _FORMAT = register(FileFormat(
     name="zarr",
     extensions=(".zarr",),
     description="zarr directory store (a folder holding zarr.json or .zgroup) with the netCDF table's schema, "
-                "CF-style units and brdftab provenance (any grid)",
+                "CF-style units and brdftab provenance (any grid): f_r [sr-1], no cosine, not a reflectance factor",
     read=read_zarr,
     write=write_zarr,
     requires=("zarr",),

@@ -404,7 +404,8 @@ def _compare_tis(table, content, path) -> None:
     chan = "" if len(content["channels"]) == 1 else f" {content['channels'][c]}"
     warnings.warn(f"{path}: TIS{chan} {tis[i, j, c]:.6g} in the file at incidence {content['aoi'][i]:g} deg, rotation "
                   f"{content['rotation'][j]:g} deg, but the directional albedo of its data is {albedo[i, j, c]:.6g} "
-                  f"(its data cover {cover[i, j, c]:.1%} of the projected hemisphere there; {int(bad.sum())} of {bad.size} "
+                  f"(its data cover {cover[i, j, c]:.1%} of the projected hemisphere there; "
+                  f"{int(bad.sum())} of {bad.size} "
                   f"blocks differ by more than {TIS_TOLERANCE:.0%})",
                   BrdftabWarning, stacklevel=4)
 
