@@ -67,6 +67,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import BrdftabError
+from .params import suggest, toml_value
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -406,21 +407,10 @@ class FitResult:
 
 
 def _toml_scalar(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, float):
-        if not math.isfinite(v):
-            raise BrdftabError(f"cannot write the non-finite value {v} to a spec")
-        return repr(v)
-    if isinstance(v, int):
-        return str(v)
-    if isinstance(v, str):
-        return json.dumps(v, ensure_ascii=False)
-    if isinstance(v, (list, tuple)):
-        return "[" + ", ".join(_toml_scalar(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{json.dumps(str(k))} = {_toml_scalar(x)}" for k, x in v.items()) + "}"
-    return str(v)
+    try:
+        return toml_value(v, finite=True)
+    except ValueError as exc:
+        raise BrdftabError(str(exc)) from None
 
 
 def _toml_table(lines, header, table, array=False, model=False) -> None:
@@ -467,7 +457,7 @@ def _start_model(model, params, where):
             owner = _owner(table, key)  # a key the model declares but the table does not hold yet
             if owner is None:
                 raise BrdftabError(f"{where}: '{key}' names no parameter of the model"
-                                   f"{_suggest(key, _all_keys(table))}; valid: {', '.join(_all_keys(table))}")
+                                   f"{suggest(key, _all_keys(table))}; valid: {', '.join(_all_keys(table))}")
             node, name = owner
             node[name] = value
             continue
@@ -524,12 +514,6 @@ def _resolve_files(table: dict, folder: Path) -> None:
             table[key] = str(Path(resolved).resolve()) if resolved != value else value
 
 
-def _suggest(word, choices) -> str:
-    from .params import suggest
-
-    return suggest(word, choices)
-
-
 def _build(table, folder):
     from .errors import SpecError
     from .spec import build_model
@@ -550,7 +534,7 @@ def _free_vector(table, free, bounds):
         if found is None and _add_declared(table, key):
             found = _walk(table, key)
         if found is None:
-            raise BrdftabError(f"--free: unknown key '{key}'{_suggest(key, valid)}; free keys of this model: "
+            raise BrdftabError(f"--free: unknown key '{key}'{suggest(key, valid)}; free keys of this model: "
                                f"{', '.join(valid) or 'none'}")
         _, _, p, value = found
         if isinstance(value, list) and value and all(map(_numeric, value)):

@@ -41,6 +41,32 @@ def suggest(word: str, choices) -> str:
     return f" (did you mean '{close[0]}'?)" if close else ""
 
 
+def toml_value(v, finite: bool = False) -> str:
+    """``v`` written as a TOML value that reads back the same: floats by their shortest exact
+    text (``nan``, ``inf``, ``-inf`` as TOML spells them, or a ValueError with ``finite``),
+    strings and table keys JSON-quoted (valid TOML basic strings), lists and dicts inline."""
+    import json
+    import math
+
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, float):
+        if not math.isfinite(v):
+            if finite:
+                raise ValueError(f"cannot write the non-finite value {v} to a spec")
+            return "nan" if math.isnan(v) else ("inf" if v > 0 else "-inf")
+        return repr(v)
+    if isinstance(v, int):
+        return str(v)
+    if isinstance(v, str):
+        return json.dumps(v, ensure_ascii=False)
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(toml_value(x, finite) for x in v) + "]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{json.dumps(str(k))} = {toml_value(x, finite)}" for k, x in v.items()) + "}"
+    return str(v)
+
+
 def unknown(kind: str, name, valid) -> str:
     """The one wording for a name that is not among ``valid`` (registries, choices)::
 

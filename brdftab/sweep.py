@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import BrdftabError, SpecError
-from .params import suggest
+from .params import suggest, toml_value
 
 __all__ = ["Sweep", "Member", "load", "member_spec", "count", "name_value", "parse_key", "MODES"]
 
@@ -57,7 +57,7 @@ class Member:
 
     def describe(self) -> str:
         """``model.alpha = 0.1, model.n = 1.3``."""
-        return ", ".join(f"{k} = {_toml(v)}" for k, v in self.values.items())
+        return ", ".join(f"{k} = {toml_value(v)}" for k, v in self.values.items())
 
 
 @dataclass
@@ -82,18 +82,6 @@ class Sweep:
 
 def _fail(path, key, message):
     return SpecError(f"{path}: {key}: {message}" if key else f"{path}: {message}")
-
-
-def _toml(v) -> str:
-    if isinstance(v, bool):
-        return "true" if v else "false"
-    if isinstance(v, str):
-        return repr(v)
-    if isinstance(v, list):
-        return "[" + ", ".join(_toml(x) for x in v) + "]"
-    if isinstance(v, dict):
-        return "{" + ", ".join(f"{k} = {_toml(x)}" for k, x in v.items()) + "}"
-    return repr(v) if isinstance(v, float) else str(v)
 
 
 def name_value(v) -> str:
@@ -186,7 +174,7 @@ def _settings(raw, path):
                     '"model.alpha" = [0.1, 0.2]')
     mode = table.get("mode", "product")
     if mode not in MODES:
-        raise _fail(path, "sweep.mode", f"expected one of {', '.join(MODES)}, got {_toml(mode)}")
+        raise _fail(path, "sweep.mode", f"expected one of {', '.join(MODES)}, got {toml_value(mode)}")
     summary = table.get("summary")
     if summary is not None:
         if not isinstance(summary, str) or not summary or "\x00" in summary:
@@ -430,7 +418,7 @@ def _cell(v) -> str:
         return repr(v)
     if isinstance(v, (list, dict)):
         return " ".join(_cell(x) for x in v) if isinstance(v, list) and all(
-            isinstance(x, (int, float)) or x is None for x in v) else _toml(v)
+            isinstance(x, (int, float)) or x is None for x in v) else toml_value(v)
     return str(v)
 
 

@@ -3,6 +3,7 @@ arrays accepted, complex and non-finite values refused, spectral terms kept to t
 wavelength range; the module itself imports nothing of brdftab's models."""
 
 import ast
+import math
 from pathlib import Path
 
 import numpy as np
@@ -70,3 +71,19 @@ def test_float_lists_refuse_integers_beyond_float_range():
     assert p.convert([1, 2]) == (1.0, 2.0)
     with pytest.raises(ParameterError, match="expected finite numbers >= 0"):
         p.convert([1, HUGE])
+
+
+def test_toml_value_reads_back_the_same():
+    """The one TOML writer of spec values (fitted specs, sweep members): tomllib reads back what
+    it wrote, bit for bit for floats; a fitted spec refuses non-finite values."""
+    import tomllib
+
+    from brdftab.params import toml_value
+
+    values = [0.1, 1e-300, 2.0 ** -1074, 3, True, 'quote " backslash \\ é', [1, 2.5, False],
+              {"wavelengths_nm": [400.0, 700.0], "values": [0.1, 0.2]}, {"a b": "c"}, float("inf")]
+    for v in values:
+        assert tomllib.loads("x = " + toml_value(v))["x"] == v, v
+    assert math.isnan(tomllib.loads("x = " + toml_value(float("nan")))["x"])
+    with pytest.raises(ValueError, match="non-finite"):
+        toml_value([1.0, float("nan")], finite=True)
