@@ -796,6 +796,9 @@ class OutOfCore:
                 self.ok.write(np.ascontiguousarray(ok, np.bool_).tobytes())
             if first in present and present[-1] == first and n0 >= 3:
                 self._first_axis_pass(first, budget)
+            for f in (self.values, self.ok, self.missing):
+                if f is not None:
+                    f.flush()  # evaluation maps the files
         except BaseException:
             self.close()
             raise
@@ -838,11 +841,21 @@ class OutOfCore:
                 self.ok.seek(r * nodes + c0)
                 self.ok.write(np.ascontiguousarray(ok[r]).tobytes())
 
-    def _read(self, f, lo, hi, shape, dtype, item):
-        out = np.empty((hi - lo,) + shape, dtype)
-        f.seek(lo * math.prod(shape) * item)
-        f.readinto(memoryview(out.reshape(-1).view(np.uint8)))
-        return out
+    @staticmethod
+    def _read(f, lo, hi, shape, dtype, item):
+        """Rows ``lo:hi`` of a scratch file as a read-only array mapped from it (not copied):
+        an evaluation window's interpolation touches only the pages its queries' corners are
+        on, and the pages leave the process's memory when the array is dropped (unmapped)."""
+        import mmap
+
+        row = math.prod(shape) * item
+        start, stop = lo * row, hi * row
+        if stop <= start:
+            return np.empty((hi - lo,) + shape, dtype)
+        base = start - start % mmap.ALLOCATIONGRANULARITY
+        mapped = mmap.mmap(f.fileno(), stop - base, access=mmap.ACCESS_READ, offset=base)
+        return np.frombuffer(mapped, dtype, count=(hi - lo) * math.prod(shape),
+                             offset=start - base).reshape((hi - lo,) + shape)
 
     def _rows(self, lo, hi):
         """(values, valid nodes) of rows ``lo:hi`` of the first axis."""
