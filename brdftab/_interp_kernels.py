@@ -54,7 +54,7 @@ FOLDS = {"none": 0, "reciprocity": 1, "bilateral": 2, "reciprocity+bilateral": 3
 # axis kinds
 PLAIN, PERIODIC, WRAPPED = 0, 1, 2
 # validity modes of table_eval
-ALL_VALID, NODE_FLAG, CHANNEL_FLAGS = 0, 1, 2
+ALL_VALID, NODE_FLAG, CHANNEL_FLAGS, NODE_MASK = 0, 1, 2, 3
 # outside modes
 OUTSIDE = {"nan": 0, "raise": 1, "clamp": 2}
 
@@ -359,12 +359,15 @@ def _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f):
 
 
 @kernel(parallel=True)  # numba's parallel loop: measured faster per core here than serial + threads
-def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, valid, vmode, mode, out, flags):
+def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, valid, vmode, mode, out, flags,
+               offset=0):
     """Interpolate at every pair into ``out[M, C]``; ``flags[M]`` = 1 where a cell without valid
     corners lies below the horizon (the caller fills it). ``vmode``: every node valid
     (:data:`ALL_VALID`), validity per node in the last column of ``vals`` (:data:`NODE_FLAG`),
-    or per node and channel in ``valid`` (:data:`CHANNEL_FLAGS`). Returns ``(outside pairs,
-    flagged pairs, wi zero vectors, wo zero vectors)``."""
+    per node and channel in ``valid`` (:data:`CHANNEL_FLAGS`), or per node in ``valid[:, 0]``
+    (:data:`NODE_MASK`). ``vals`` and ``valid`` may hold a window of the table's nodes: row 0
+    is the table's node ``offset`` (every corner of the pairs must lie in it). Returns
+    ``(outside pairs, flagged pairs, wi zero vectors, wo zero vectors)``."""
     m = wi.shape[0]
     nc = out.shape[1]
     n_axes = 4
@@ -434,7 +437,7 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
             go[j] = True
             # prefetch the cell's rows now (they arrive while the next pairs' coordinates are
             # computed), so the gathers of pass 2 mostly hit the cache
-            p0 = lo[j, 0] + lo[j, 1] + lo[j, 2] + lo[j, 3]
+            p0 = lo[j, 0] + lo[j, 1] + lo[j, 2] + lo[j, 3] - offset
             d2 = hi[j, 2] - lo[j, 2]
             _prefetch_row(vals, p0)
             _prefetch_row(vals, p0 + d2)
@@ -472,14 +475,14 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
                                 q2 = q1 + (hi[j, 2] if b2 else lo[j, 2])
                                 for b3 in range(2):
                                     w = w2 * (fr[j, 3] if b3 else 1.0 - fr[j, 3])
-                                    pos = q2 + (hi[j, 3] if b3 else lo[j, 3])
+                                    pos = q2 + (hi[j, 3] if b3 else lo[j, 3]) - offset
                                     if w == 0.0:
                                         continue
                                     if vmode == ALL_VALID:
                                         for c in range(nc):
                                             out[i, c] += w * float(vals[pos, c])
-                                    elif vmode == NODE_FLAG:
-                                        if vals[pos, nc] != 0.0:
+                                    elif vmode == NODE_FLAG or vmode == NODE_MASK:
+                                        if (vals[pos, nc] != 0.0) if vmode == NODE_FLAG else valid[pos, 0]:
                                             dn += w
                                             for c in range(nc):
                                                 out[i, c] += w * float(vals[pos, c])
@@ -492,7 +495,7 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
                     # weight multiplied in axis order as table._corners does; bit (n_axes - 1 - a)
                     # of the corner picks the high node of axis a
                     w = 1.0
-                    pos = 0
+                    pos = -offset
                     for a in range(first, n_axes):
                         if (corner >> (n_axes - 1 - a)) & 1:
                             w *= fr[j, a]
@@ -506,14 +509,14 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
                         if den[c] > 0.0:
                             continue
                         v = float(vals[pos, c])
-                        ok = vals[pos, nc] != 0.0 if vmode == NODE_FLAG else valid[pos, c]
+                        ok = vals[pos, nc] != 0.0 if vmode == NODE_FLAG else valid[pos, 0 if vmode == NODE_MASK else c]
                         if ok or v >= 0.0:
                             out[i, c] += w * v
                         if v != 0.0:
                             den[c] = -1.0  # not all zero: NaN
                 if sweep == 0 and vmode != ALL_VALID:
                     for c in range(nc):
-                        if vmode == NODE_FLAG:
+                        if vmode == NODE_FLAG or vmode == NODE_MASK:
                             den[c] = dn
                         if den[c] > 0.0:
                             out[i, c] = out[i, c] / den[c]
@@ -532,6 +535,32 @@ def table_eval(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, vals, vali
                     flags[i] = 1
                     n_fill += 1
     return n_out, n_fill, zi, zo
+
+
+@kernel(parallel=True)
+def first_cells(wi, wo, check, kind, fold, iso, ax_i, ax_f, xp, slope, cells):
+    """``cells[M]``: the low node, along the grid's first axis, of the cell :func:`table_eval`
+    interpolates pair ``i`` in (clamped into the axis as it clamps it; 0 for a pair it does not
+    interpolate): what an evaluation window by window of that axis sorts the pairs by."""
+    m = wi.shape[0]
+    a = 1 if ax_i[0, 5] else 0
+    n = ax_i[a, 0]
+    for i in prange(m):
+        cells[i] = 0
+        ix, iy, iz, ox, oy, oz, st = _load(wi, wo, i, check)
+        if st != 0:
+            continue
+        x0, x1, x2, x3 = _coordinates(ix, iy, iz, ox, oy, oz, kind, fold, iso, ax_i, ax_f)
+        x = x1 if a == 1 else x0
+        k = _axis_index(x, a, ax_i, ax_f, xp, slope)
+        if k != k:
+            continue
+        i0 = int(math.floor(k))
+        if ax_i[a, 1] == PERIODIC:
+            i0 = i0 % n if (i0 < 0 or i0 >= n) else i0
+        else:
+            i0 = min(max(i0, 0), n - 1)
+        cells[i] = i0
 
 
 def _axis_arrays(axes, strides, iso_dummy):
@@ -630,17 +659,7 @@ class TablePlan:
                 self.vals = _large_pages(flat.shape, flat.dtype)
                 self.vals[...] = flat
                 self.valid = np.ascontiguousarray(ok)
-        shape = grid.shape
-        strides = [int(np.prod(shape[k + 1:], dtype=np.int64)) for k in range(len(shape))]
-        self.ax_i, self.ax_f, self.xp, self.slope = _axis_arrays(grid.axes, strides, len(shape) == 3)
-        p = getattr(grid, "parameterization", "")
-        if p == "spherical":
-            self.kind = SPHERICAL_SPECULAR if grid.relative_to == "specular" else SPHERICAL
-            self.fold = FOLDS[getattr(grid, "phi_d_fold", "none")]  # none or bilateral
-        else:
-            self.kind = RUSINKIEWICZ
-            self.fold = FOLDS[grid.phi_d_fold]
-        self.iso = bool(isotropic)
+        _plan_grid(self, grid, isotropic)
 
     def run(self, wi, wo, check, mode, out, flags):
         """:func:`table_eval` over all pairs (in chunks when they are not C-contiguous); returns
@@ -650,6 +669,50 @@ class TablePlan:
             total += table_eval(a, b, check, self.kind, self.fold, self.iso, self.ax_i, self.ax_f, self.xp,
                                 self.slope, self.vals, self.valid, self.vmode, OUTSIDE[mode], out[rows], flags[rows])
         return tuple(int(x) for x in total)
+
+
+def _plan_grid(plan, grid, isotropic):
+    """Set a plan's packed axes (``ax_i``, ``ax_f``, ``xp``, ``slope``), grid kind, φd fold and
+    isotropy from ``grid``."""
+    shape = grid.shape
+    strides = [int(np.prod(shape[k + 1:], dtype=np.int64)) for k in range(len(shape))]
+    plan.ax_i, plan.ax_f, plan.xp, plan.slope = _axis_arrays(grid.axes, strides, len(shape) == 3)
+    p = getattr(grid, "parameterization", "")
+    if p == "spherical":
+        plan.kind = SPHERICAL_SPECULAR if grid.relative_to == "specular" else SPHERICAL
+        plan.fold = FOLDS[getattr(grid, "phi_d_fold", "none")]  # none or bilateral
+    else:
+        plan.kind = RUSINKIEWICZ
+        plan.fold = FOLDS[grid.phi_d_fold]
+    plan.iso = bool(isotropic)
+
+
+class WindowPlan:
+    """The compiled interpolation of a table held in windows of its first axis (a table over
+    the memory budget, its interpolation data in scratch files mapped window by window):
+    :meth:`cells` gives each pair's cell along that axis, :meth:`run` interpolates pairs whose
+    cells lie in a window from that window's values ``[rows × nodes per row, C]`` (float64) and
+    node validity ``[rows × nodes per row, 1]``, exactly as :class:`TablePlan` does from the
+    whole table."""
+
+    def __init__(self, grid, isotropic):
+        _plan_grid(self, grid, isotropic)
+        self.row_nodes = int(np.prod(grid.shape[1:], dtype=np.int64))
+
+    def cells(self, wi, wo, check):
+        cells = np.empty(wi.shape[0], np.int64)
+        for rows, a, b in contiguous_pairs(wi, wo):
+            first_cells(a, b, check, self.kind, self.fold, self.iso, self.ax_i, self.ax_f, self.xp, self.slope,
+                        cells[rows])
+        return cells
+
+    def run(self, wi, wo, check, mode, out, flags, vals, valid, first_row):
+        total = np.zeros(4, np.int64)
+        offset = first_row * self.row_nodes
+        for rows, a, b in contiguous_pairs(wi, wo):
+            total += table_eval(a, b, check, self.kind, self.fold, self.iso, self.ax_i, self.ax_f, self.xp,
+                                self.slope, vals, valid, NODE_MASK, OUTSIDE[mode], out[rows], flags[rows], offset)
+        return total
 
 
 # ------------------------------------------------------------------------------------------

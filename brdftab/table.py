@@ -508,18 +508,45 @@ class Table(BRDF):
         return self._channels(out, lam, n).reshape(lead + (n,))
 
     def _eval(self, wi, wo, lam, n):
-        if self._slab_mode() or not compiled_enabled() or not self.grid.compiled:
+        if not compiled_enabled() or not self.grid.compiled:
             return self._eval_numpy(wi, wo, lam, n)
+        if self._slab_mode():
+            ooc = self._windowed(wi, wo)
+            if ooc is None:
+                return self._eval_numpy(wi, wo, lam, n)
+            return self._channels(self._interpolate(wi, wo, False, ooc), lam, n)
         return self._channels(self._interpolate(wi, wo, False), lam, n)
 
-    def _interpolate(self, wi, wo, check):
+    def _windowed(self, wi, wo):
+        """The scratch data (:class:`OutOfCore`) a table over the budget interpolates the pairs
+        from by the compiled kernel, window by window; None where numpy does it: a few rows of
+        the first axis read directly (no scratch made), or missing samples per channel."""
+        ooc = getattr(self, "_ooc", None)
+        if ooc is None:
+            plan = OutOfCore.window_plan(self.grid, self.isotropic)
+            cells = plan.cells(wi, wo, False)
+            n = self.shape[0]
+            lo = max(0, int(cells.min()) - SLAB_MARGIN) if cells.size else 0
+            hi = min(n, int(cells.max()) + SLAB_MARGIN + 2) if cells.size else min(n, 1)
+            per_row = self.grid.size // n * self.shape[-1] * (self._var.dtype.itemsize + 8 * 3)
+            if (hi - lo) * per_row <= memory_budget() // 8:
+                return None  # few rows: read them (the numpy path's choice, made on the same cells)
+            ooc = self._out_of_core()
+        return ooc if ooc.missing is None else None
+
+    def _interpolate(self, wi, wo, check, ooc=None):
         """The compiled interpolation at ``(M, 3)`` pairs: ``(M, stored channels)``, NaN outside
-        the domain (or raising, or clamped, as :attr:`outside` says)."""
-        plan, fill = self._kernel_plan()
+        the domain (or raising, or clamped, as :attr:`outside` says); from the scratch data
+        ``ooc`` (:class:`OutOfCore`) window by window when given."""
         m = wi.shape[0]
-        out = np.empty((m, plan.n_channels))
         flags = np.empty(m, np.uint8)
-        n_out, n_fill, zero_i, zero_o = plan.run(wi, wo, check, self._outside, out, flags)
+        if ooc is not None:
+            out = np.empty((m, self.shape[-1]))
+            n_out, n_fill, zero_i, zero_o = ooc.evaluate(wi, wo, check, self._outside, self.isotropic, out, flags)
+        else:
+            plan, fill = self._kernel_plan()
+            out = np.empty((m, plan.n_channels))
+            n_out, n_fill, zero_i, zero_o = plan.run(wi, wo, check, self._outside, out, flags)
         if zero_i or zero_o:
             raise ParameterError("wi" if zero_i else "wo", "a direction has zero length")
         if n_out and self._outside == "raise":
@@ -534,8 +561,11 @@ class Table(BRDF):
 
                 a, b = _unit(np.array(a), "wi"), _unit(np.array(b), "wo")
             idx, _ = self.grid.locate(a, b, isotropic=self.isotropic)
-            values, valid = self._interp_data()
-            out[rows] = _multilinear(values, idx, self.grid.axes, valid, fill=fill)
+            if ooc is not None:
+                out[rows] = ooc.interpolate(idx)
+            else:
+                values, valid = self._interp_data()
+                out[rows] = _multilinear(values, idx, self.grid.axes, valid, fill=fill)
         if n_out and self._outside == "nan" and not self._warned:
             self._warned = True
             warnings.warn(f"{n_out} direction pair(s) lie outside the domain of the "
@@ -864,6 +894,42 @@ class OutOfCore:
 
     def _missing(self, lo, hi):
         return None if self.missing is None else self._read(self.missing, lo, hi, self.shape[1:], np.bool_, 1)
+
+    @staticmethod
+    def window_plan(grid, isotropic):
+        """The compiled kernel's plan (:class:`brdftab._interp_kernels.WindowPlan`) of a grid."""
+        from ._interp_kernels import WindowPlan
+
+        return WindowPlan(grid, isotropic)
+
+    def evaluate(self, wi, wo, check, mode, isotropic, out, flags):
+        """The compiled interpolation (:func:`brdftab._interp_kernels.table_eval`) at ``(M, 3)``
+        pairs into ``out[M, C]`` and ``flags[M]``, window by window of the first axis as
+        :meth:`interpolate` goes (each pair in the window of its cell, the window's rows
+        mapped); returns the kernel's counts summed (outside, to fill, zero wi, zero wo)."""
+        plan = getattr(self, "_plan", None)
+        if plan is None or plan[0] != isotropic:
+            plan = self._plan = (isotropic, self.window_plan(self.grid, isotropic))
+        plan = plan[1]
+        cells = plan.cells(wi, wo, check)
+        order = np.argsort(cells, kind="stable")
+        sorted_cells = cells[order]
+        total = np.zeros(4, np.int64)
+        c = self.shape[-1]
+        for a in range(0, self.n0, self.window):
+            b = min(self.n0, a + self.window)
+            sel = order[np.searchsorted(sorted_cells, a):np.searchsorted(sorted_cells, b)]
+            if sel.size == 0:
+                continue
+            lo, hi = max(0, a - WINDOW_MARGIN), min(self.n0, b + 1 + WINDOW_MARGIN)
+            vals, ok = self._rows(lo, hi)
+            part = np.empty((sel.size, c))
+            part_flags = np.empty(sel.size, np.uint8)
+            total += plan.run(wi[sel], wo[sel], check, mode, part, part_flags, vals.reshape(-1, c),
+                              ok.reshape(-1, 1), lo)
+            out[sel] = part
+            flags[sel] = part_flags
+        return tuple(int(x) for x in total)
 
     def interpolate(self, idx) -> np.ndarray:
         """Values ``[M, C]`` at fractional indices ``idx`` (one array per axis, as

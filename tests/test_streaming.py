@@ -202,7 +202,10 @@ def test_out_of_core_interpolation_equals_the_loaded_table(tmp_path, monkeypatch
     assert t._slab_mode()
     got = t.eval(wi, wo)
     assert t._values is None and t._out_of_core().window < len(t.grid.axes[0])
+    assert getattr(t._out_of_core(), "_plan", None) is not None  # the compiled kernel, window by window
     np.testing.assert_allclose(got, want, rtol=1e-12, atol=0)
+    with brdftab.brdf.numpy_reference():  # and numpy's windows
+        np.testing.assert_allclose(t.eval(wi, wo), want, rtol=1e-12, atol=0)
     t.close()
 
 
