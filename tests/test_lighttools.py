@@ -458,3 +458,16 @@ def test_a_spec_output_tabulates_a_seed_model_to_lighttools_validated(tmp_path, 
         wi, wo = convention(b["AOI"], b["POI"], lists["ScatterRadial"][r], lists["ScatterAzimuth"][a])
         c = "XYZ".index(b["TristimulusValue"][-1]) if "TristimulusValue" in b else 0
         assert b["values"][a, r] == pytest.approx(view.eval(wi, wo)[c], rel=5e-7, abs=1e-12)
+    # the file against the model at the pre-export comparison's points (the default grid's resolution)
+    from brdftab.convert import difference
+    from brdftab.integrate import directional_albedo
+
+    table = brdftab.open(out)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BrdftabWarning)
+        d, _ = difference(view, table)
+    median, p95 = {"ggx-gold": (0.01, 0.025), "pyromark-cook-torrance": (0.0025, 0.013)}[spec]
+    assert d.median_rel <= median and d.p95_rel <= p95
+    # TIS of the blocks at AOI 0 and 45 against the model's own directional albedo
+    tis = table.ds["lighttools_tis"].values[[0, 9], 0, :]
+    assert np.allclose(tis, directional_albedo(view, np.radians([0.0, 45.0]), 0.0), rtol=0.0025)
