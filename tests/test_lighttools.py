@@ -182,6 +182,15 @@ def test_plane_symmetrical_files_hold_one_side_of_the_plane_of_incidence(tmp_pat
             wi, wo = convention(aoi, 0, r, az)
             assert table.eval(wi, wo)[0] == stored
         assert stored == pytest.approx(model.eval(*convention(aoi, 0, r, 90 - d))[0], rel=5e-7)
+    # a file holding the other side (azimuths POI - 90 .. POI + 90) reads as its mirror image
+    other = HAND.replace("Symmetry Asymmetric", "Symmetry PlaneSymmetrical").replace(
+        "ScatterAzimuth 4\n0 90 180 270", "ScatterAzimuth 4\n-90 0 45 90")
+    (tmp_path / "o.bsdf").write_text(other)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BrdftabWarning)
+        t = brdftab.open(tmp_path / "o.bsdf")
+    for az, want in ((-90, 0.51), (270, 0.51), (0, 0.61), (180, 0.61), (45, 0.71), (135, 0.71), (90, 0.81)):
+        assert t.eval(*convention(40, 0, 30, az))[0] == want  # file azimuth 90 - d is stored, 90 + d mirrors it
     with pytest.raises(brdftab.errors.BrdftabError, match="one side of the plane of incidence"):
         brdftab.save(model, tmp_path / "q.bsdf", format="lighttools", symmetry="PlaneSymmetrical",
                      azimuths_deg=[0, 90, 180])
@@ -336,6 +345,7 @@ def test_damaged_file_on_the_command_line_is_one_line_and_exit_2(tmp_path):
                           timeout=120)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
     assert proc.stderr.startswith("brdftab: error:") and len(proc.stderr.strip().splitlines()) == 1
+    assert "no Front BRDF block at AOI 0, POI 30" in proc.stderr
 
 
 def test_mutated_files_give_a_format_error_or_a_table_never_a_crash():
@@ -388,9 +398,12 @@ def test_a_file_converts_to_netcdf_value_for_value_and_back(tmp_path):
     src = tmp_path / "m.bsdf"
     brdftab.save(_model(rgb=True), src, format="lighttools", **SMALL)
     table = brdftab.open(src)
-    proc = subprocess.run([sys.executable, "-m", "brdftab", "convert", str(src), str(tmp_path / "m.nc")],
-                          capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0 and "copied" in proc.stdout, proc.stderr
+    from click.testing import CliRunner
+
+    from brdftab.cli import main
+
+    r = CliRunner().invoke(main, ["convert", str(src), str(tmp_path / "m.nc")])
+    assert r.exit_code == 0 and "copied" in r.output, r.output
     nc = brdftab.open(tmp_path / "m.nc")
     assert type(nc.grid).__name__ == "SphericalGrid" and nc.origin == "unknown"
     assert np.array_equal(nc.values, table.values)

@@ -252,13 +252,9 @@ def _outgoing_axis(path, parsed, poi, data):
         raise FormatError(f"{path}: a PlaneSymmetrical file describes an isotropic surface (one POI), not {poi.size} "
                           f"planes of incidence")
     rel = np.mod(phi - poi[0] + 180.0, 360.0) - 180.0  # φo − φi in [−180, 180)
-    rel = np.where(np.isclose(rel, -180.0, atol=1e-9), 180.0, rel)
-    tol = 1e-9
-    if np.all(rel >= -tol):
-        side = np.abs(rel)
-    elif np.all(rel <= tol):
-        side = np.abs(rel)  # the mirror image across the plane of incidence: the same values
-    else:
+    side = np.abs(rel)  # a node on the other side holds the values of its mirror image
+    off = (side > 1e-9) & (side < 180.0 - 1e-9)  # nodes off the plane of incidence
+    if np.any(rel[off] > 0) and np.any(rel[off] < 0):
         raise FormatError(f"{path}: a PlaneSymmetrical file holds one side of the plane of incidence: ScatterAzimuth "
                           f"angles in [{AZIMUTH_OFFSET_DEG + poi[0]:g}, {AZIMUTH_OFFSET_DEG + poi[0] + 180:g}] or "
                           f"[{AZIMUTH_OFFSET_DEG + poi[0] - 180:g}, {AZIMUTH_OFFSET_DEG + poi[0]:g}] deg (the incident "
