@@ -182,6 +182,13 @@ def test_plane_symmetrical_files_hold_one_side_of_the_plane_of_incidence(tmp_pat
             wi, wo = convention(aoi, 0, r, az)
             assert table.eval(wi, wo)[0] == stored
         assert stored == pytest.approx(model.eval(*convention(aoi, 0, r, 90 - d))[0], rel=5e-7)
+    # the table read is written back on its own nodes: the same file content
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", BrdftabWarning)
+        brdftab.save(table, tmp_path / "again.bsdf", format="lighttools")
+    head2, lists2, blocks2 = mini_parse((tmp_path / "again.bsdf").read_text())
+    assert head2 == head and lists2 == lists
+    assert all(np.array_equal(b1["values"], b2["values"]) and b1["TIS"] == b2["TIS"] for b1, b2 in zip(blocks, blocks2))
     # a file holding the other side (azimuths POI - 90 .. POI + 90) reads as its mirror image
     other = HAND.replace("Symmetry Asymmetric", "Symmetry PlaneSymmetrical").replace(
         "ScatterAzimuth 4\n0 90 180 270", "ScatterAzimuth 4\n-90 0 45 90")

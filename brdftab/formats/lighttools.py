@@ -340,9 +340,9 @@ def _table(path, parsed, got):
 # --------------------------------------------------------------------------------------------
 # Writing
 
-_SYMMETRY_CHOICES = ("Asymmetric", "PlaneSymmetrical")
+_SYMMETRY_CHOICES = ("auto", "Asymmetric", "PlaneSymmetrical")
 _CONTENT_CHOICES = ("auto", "Monochrome", "XYZ")
-_GRID_OPTIONS = ("incidences_deg", "poi_deg", "azimuths_deg", "radials_deg", "symmetry")
+_GRID_OPTIONS = ("incidences_deg", "poi_deg", "azimuths_deg", "radials_deg")
 
 
 def _plane_azimuths(az, poi):
@@ -356,11 +356,11 @@ def _plane_azimuths(az, poi):
     return np.clip(rel, 0.0, 180.0)
 
 
-def check_options(symmetry="Asymmetric", spectral_content="auto", incidences_deg=None, poi_deg=None,
+def check_options(symmetry="auto", spectral_content="auto", incidences_deg=None, poi_deg=None,
                   azimuths_deg=None, radials_deg=None, illuminant="D65", observer="cie1931-2", wavelengths_nm=None):
     """The writer's options checked (one :class:`ParameterError` naming the option)."""
     if symmetry not in _SYMMETRY_CHOICES:
-        raise ParameterError("symmetry", f"expected 'Asymmetric' or 'PlaneSymmetrical', got {symmetry!r}")
+        raise ParameterError("symmetry", f"expected 'auto', 'Asymmetric' or 'PlaneSymmetrical', got {symmetry!r}")
     if spectral_content not in _CONTENT_CHOICES:
         raise ParameterError("spectral_content", f"expected 'auto', 'Monochrome' or 'XYZ', got {spectral_content!r}")
     _deg_list("incidences_deg", incidences_deg, 0, 90)
@@ -381,7 +381,7 @@ def check_options(symmetry="Asymmetric", spectral_content="auto", incidences_deg
 def _grid(options, anisotropic):
     from ..grids import SphericalGrid
 
-    plane = options.get("symmetry", "Asymmetric") == "PlaneSymmetrical"
+    plane = options.get("symmetry", "auto") == "PlaneSymmetrical"
     inc = _deg_list("incidences_deg", options.get("incidences_deg"), 0, 90)
     poi = _deg_list("poi_deg", options.get("poi_deg"), -360, 360)
     az = _deg_list("azimuths_deg", options.get("azimuths_deg"), 0, 360)
@@ -399,26 +399,28 @@ def _grid(options, anisotropic):
                          phi_d_fold="bilateral" if plane else "none")
 
 
-def _writable(grid, symmetry=None) -> bool:
+def _writable(grid, symmetry="auto") -> bool:
     """True for a spherical grid a LightTools file holds as it is (absolute outgoing angles,
-    θo ≤ 90°; a mirror-symmetric grid as PlaneSymmetrical)."""
+    θo ≤ 90°): a mirror-symmetric grid (``phi_d_fold = "bilateral"``) as PlaneSymmetrical,
+    another as Asymmetric (``symmetry = "auto"``: either)."""
     from ..grids import SphericalGrid
 
     if not isinstance(grid, SphericalGrid) or grid.relative_to != "none":
         return False
-    if symmetry is not None and (grid.phi_d_fold == "bilateral") != (symmetry == "PlaneSymmetrical"):
+    if symmetry != "auto" and (grid.phi_d_fold == "bilateral") != (symmetry == "PlaneSymmetrical"):
         return False
     return True
 
 
 def native_grid(requested, options: dict):
-    """The spherical grid of the writer's options (or a requested one a LightTools file holds)."""
-    if _writable(requested, options.get("symmetry")) and not any(k in options for k in _GRID_OPTIONS):
+    """The spherical grid of the writer's options, or a requested one a LightTools file holds as
+    it is (a table's own grid: a LightTools file read and converted is written on its nodes)."""
+    if _writable(requested, options.get("symmetry", "auto")) and not any(k in options for k in _GRID_OPTIONS):
         return requested
     return _grid(options, anisotropic=False)
 
 
-def prepare_lighttools(brdf, grid, symmetry="Asymmetric", spectral_content="auto", incidences_deg=None, poi_deg=None,
+def prepare_lighttools(brdf, grid, symmetry="auto", spectral_content="auto", incidences_deg=None, poi_deg=None,
                        azimuths_deg=None, radials_deg=None, illuminant="D65", observer="cie1931-2",
                        wavelengths_nm=None):
     """The table (on a :class:`~brdftab.grids.SphericalGrid`) that :func:`write_lighttools`
@@ -431,7 +433,7 @@ def prepare_lighttools(brdf, grid, symmetry="Asymmetric", spectral_content="auto
                    poi_deg=poi_deg, azimuths_deg=azimuths_deg, radials_deg=radials_deg)
     check_options(**options, illuminant=illuminant, observer=observer)
     warn_specular_dropped(brdf, "a LightTools .bsdf file")
-    explicit = any(v is not None for k, v in options.items() if k.endswith("_deg")) or symmetry != "Asymmetric"
+    explicit = any(v is not None for k, v in options.items() if k.endswith("_deg"))
     if _writable(grid, symmetry) and not explicit:
         target = grid
     else:
@@ -449,7 +451,7 @@ def _stored(payload, **_):
     return rounded(payload, "a LightTools file")
 
 
-def write_lighttools(table, path, symmetry="Asymmetric", spectral_content="auto", incidences_deg=None, poi_deg=None,
+def write_lighttools(table, path, symmetry="auto", spectral_content="auto", incidences_deg=None, poi_deg=None,
                      azimuths_deg=None, radials_deg=None, illuminant="D65", observer="cie1931-2",
                      wavelengths_nm=None):
     """Write ``table`` (from :func:`prepare_lighttools`) as a LightTools text file: one block
@@ -517,7 +519,8 @@ register(FileFormat(
     colour=True,
     params=(
         Param("symmetry", "choice", "Asymmetric (azimuths round the circle) or PlaneSymmetrical (one side of the "
-              "plane of incidence, mirrored).", default="Asymmetric", choices=_SYMMETRY_CHOICES),
+              "plane of incidence, mirrored); auto: PlaneSymmetrical for a table on a mirror-symmetric spherical grid "
+              "(a PlaneSymmetrical file read), else Asymmetric.", default="auto", choices=_SYMMETRY_CHOICES),
         Param("spectral_content", "choice", "Monochrome or XYZ (auto: Monochrome for a grey source, XYZ for RGB "
               "and spectral ones, through colour-science).", default="auto", choices=_CONTENT_CHOICES),
         Param("incidences_deg", "floats", "AOI: angles of incidence in degrees (default 0 to 85 every 5).",
