@@ -488,6 +488,13 @@ def test_a_spec_output_tabulates_a_seed_model_to_lighttools_validated(tmp_path, 
         d, _ = difference(view, table)
     median, p95 = {"ggx-gold": (0.01, 0.025), "pyromark-cook-torrance": (0.0025, 0.013)}[spec]
     assert d.median_rel <= median and d.p95_rel <= p95
+    # the file does not say whether its data are reciprocal: judged as data (Pyromark's model is
+    # not reciprocal: its asymmetry is reported, never a failure)
+    from brdftab.checks import run_checks
+
+    assert not table.reciprocity_declared
+    report = run_checks(table)
+    assert report.passed and report.get("reciprocity").status == ("warn" if spec.startswith("pyromark") else "pass")
     # TIS of the blocks at AOI 0 and 45 against the model's own directional albedo
     tis = table.ds["lighttools_tis"].values[[0, 9], 0, :]
     assert np.allclose(tis, directional_albedo(view, np.radians([0.0, 45.0]), 0.0), rtol=0.0025)

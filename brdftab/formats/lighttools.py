@@ -310,7 +310,6 @@ def _table(path, parsed, got):
         "model": "unknown",
         "parameters": "{}",
         "isotropic": int(got["poi"].size == 1),
-        "reciprocal": 1,
         "source_file": name,
         "source_format": "lighttools",
         "lighttools_symmetry": parsed["symmetry"],
@@ -327,7 +326,8 @@ def _table(path, parsed, got):
     table = make_table(values, grid, Layout(parsed["channels"]), provenance=provenance)
     ds = table.ds
     ds.attrs["origin"] = "unknown"  # the format does not say whether its data were measured
-    for key in ("created", "brdftab_version", "history", "source"):
+    # nor whether they are reciprocal: the checks judge them as data (reported, never refused)
+    for key in ("created", "brdftab_version", "history", "source", "reciprocal"):
         ds.attrs.pop(key, None)
     ds["lighttools_tis"] = (("theta_i", "phi_i", ds["brdf"].dims[-1]), got["tis"],
                             {"long_name": "TIS written in the LightTools file per incidence (total integrated "
