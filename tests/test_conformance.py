@@ -27,7 +27,7 @@ import xarray as xr
 import brdftab
 from brdftab import models
 from brdftab.checks import guard
-from brdftab.errors import FormatError, ParameterError
+from brdftab.errors import BrdftabWarning, FormatError, ParameterError
 from brdftab.grids import RusinkiewiczGrid, SphericalGrid
 from brdftab.table import tabulate
 
@@ -330,7 +330,7 @@ DataEnd
 """
 
 LIGHTTOOLS = """# LightTools BSDF
-Symmetry PlaneSymmetrical
+Symmetry Asymmetric
 SpectralContent Monochrome
 ScatterAzimuth 2
 0 180
@@ -357,14 +357,20 @@ def test_zemax_text_bsdf_is_read_by_its_content(tmp_path, name):
     assert np.array_equal(table.values[..., 0], [[[[0.1, 0.2], [0.3, 0.4]]]] * 2)
 
 
-def test_lighttools_text_bsdf_is_named_and_refused(tmp_path):
-    path = tmp_path / "l.bsdf"
+@pytest.mark.parametrize("name", ["l.bsdf", "l.txt"])
+def test_lighttools_text_bsdf_is_read_by_its_content(tmp_path, name):
+    path = tmp_path / name
     path.write_text(LIGHTTOOLS)
-    with pytest.raises(FormatError, match="LightTools") as info:
-        brdftab.open(path)
-    assert "not a tensor file" not in str(info.value) and "not read this format yet" in str(info.value)
+    with pytest.warns(BrdftabWarning, match="TIS 0.5"):
+        table = brdftab.open(path)
+    assert table.grid.type_name == "spherical" and table.origin == "unknown"
+    # [theta_i, phi_i, theta_o (radial), phi_o (azimuth), C]: each azimuth row of the file is a column here
+    assert np.array_equal(table.values[0, 0, :, :, 0], [[0.1, 0.3], [0.2, 0.4]])
+    path.write_text(LIGHTTOOLS.replace("Symmetry Asymmetric", "Symmetry PlaneSymmetrical"))
+    with pytest.raises(FormatError, match="one side of the plane of incidence") as info:
+        brdftab.open(path)  # azimuths 0 and 180 lie on both sides of the plane of incidence (90 / 270)
     r = _cli("info", path)
-    assert r.exit_code == 2 and r.stderr.count("\n") == 1 and "LightTools" in r.stderr and "Traceback" not in r.stderr
+    assert r.exit_code == 2 and r.stderr.count("\n") == 1 and "PlaneSymmetrical" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_other_text_files_keep_their_messages(tmp_path):

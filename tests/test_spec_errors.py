@@ -65,7 +65,7 @@ CASES = {
                         ["model.fresnel: unknown fresnel 'conductr' (did you mean 'conductor'?); valid: none, "]),
     "unknown-output-format": (_spec_text(output='[[output]]\npath = "out.nc"\nformat = "netcdff"\n'),
                               ["output[0].format: unknown format 'netcdff' (did you mean 'netcdf'?); valid: netcdf, "
-                               "zarr, merl, rgl, exr, zemax"]),
+                               "zarr, merl, rgl, exr, zemax, lighttools"]),
     "unknown-grid-type-wording": (_spec_text(grid='[grid]\ntype = "rusinkiewiz"\n'),
                                   ["grid.type: unknown grid type 'rusinkiewiz' (did you mean 'rusinkiewicz'?); valid: "]),
     # channel layouts that do not combine: the error names the parameter or term, not "terms"

@@ -92,7 +92,7 @@ class FileFormat:
     #: up front (:meth:`check_path`) instead of failing inside the library after the work.
     utf8_paths: bool = False
     #: True for a format brdftab recognises (to say what a file is) but neither reads nor
-    #: writes (Zemax/LightTools text .bsdf): lists of usable formats leave it out.
+    #: writes: lists of usable formats leave it out.
     recognised_only: bool = False
     #: True for a format that stores colour channels: a spectral source is written converted
     #: to three colour channels through colour-science (:mod:`brdftab.colorimetry`).
@@ -437,7 +437,7 @@ def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, o
 
 #: Format modules shipped with brdftab (each registers itself on import). A module whose
 #: optional library is missing must still import: it imports that library inside functions.
-BUILTIN = ("netcdf", "zarr", "merl", "rgl", "exr", "zemax", "mbsdf")
+BUILTIN = ("netcdf", "zarr", "merl", "rgl", "exr", "zemax", "lighttools", "mbsdf")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")

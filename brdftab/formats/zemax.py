@@ -1,5 +1,5 @@
 """Zemax / Radiant Imaging "BSDF Data Interchange" text ``.bsdf`` files: read and write
-(``formats/zemax.md``); LightTools text ``.bsdf`` files: recognised and refused.
+(``formats/zemax.md``). LightTools text ``.bsdf`` files are read by :mod:`brdftab.formats.lighttools`.
 
 Three unrelated formats share the ``.bsdf`` extension (formats.md §2, §4): RGL's binary tensor
 files (:mod:`brdftab.formats.rgl`, which owns the extension when writing), the ASCII files of
@@ -85,7 +85,7 @@ def _text(data: bytes) -> str | None:
     return None if bad > len(text) // 100 + 1 else text
 
 
-def sniff(head: bytes, size: int) -> bool:
+def text_bsdf(head: bytes) -> bool:
     """True for text whose first token that is not a ``#`` comment is a Zemax or LightTools
     header keyword (a spec file, also text with ``#`` comments, starts otherwise)."""
     text = _text(head)
@@ -97,6 +97,12 @@ def sniff(head: bytes, size: int) -> bool:
             continue
         return word.split()[0] in ZEMAX_KEYWORDS + LIGHTTOOLS_KEYWORDS
     return False
+
+
+def sniff(head: bytes, size: int) -> bool:
+    """True for a Zemax text file, and for a text ``.bsdf`` file whose dialect its head does not
+    settle (the reader classifies the whole start and hands a LightTools file to its reader)."""
+    return text_bsdf(head) and classify(head)[0] != "lighttools"
 
 
 def classify(data: bytes):
@@ -298,7 +304,7 @@ def parse_zemax(path, text: str) -> dict:
 
 def read_zemax(path):
     """Read a Zemax / Radiant text ``.bsdf`` file into a :class:`~brdftab.table.Table` on its own
-    :class:`~brdftab.grids.SpecularPolarGrid`; refuse a LightTools file with one line. A text
+    :class:`~brdftab.grids.SpecularPolarGrid`; a LightTools file goes to its own reader. A text
     file that is neither is read by the format its extension names (which says what is wrong)."""
     path = Path(path)
     try:
@@ -307,11 +313,9 @@ def read_zemax(path):
         raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
     dialect, header = classify(raw[:CLASSIFY_BYTES])
     if dialect == "lighttools":
-        details = ", ".join(f"{k} {header[k]}" for k in ("ScatterType", "Symmetry", "SpectralContent")
-                            if header.get(k))
-        details = f" ({details})" if details else ""
-        raise FormatError(f"{path}: a LightTools BSDF text file{details}, not a Zemax or RGL .bsdf file; brdftab "
-                          "does not read this format yet")
+        from .lighttools import read_lighttools
+
+        return read_lighttools(path)
     if dialect != "zemax":
         from . import FORMATS, format_for, usable
 
@@ -390,24 +394,30 @@ def tis_albedo(table, coverage: bool = False):
 
 
 def _compare_tis(table, content, path) -> None:
-    """One warning when the file's TIS and the albedo of its data differ by more than
-    :data:`TIS_TOLERANCE` (relative) and 1e-3: the worst block, both figures, and how many."""
+    compare_tis(table, np.moveaxis(content["tis"], (0, 1), (2, 1)), content["channels"], path, "zemax",
+                ("incidence", content["aoi"]), ("rotation", content["rotation"]))
+
+
+def compare_tis(table, tis, channels, path, prefix, incidence, azimuth) -> None:
+    """One warning when a file's TIS ``[θi, φi, C]`` and the albedo of its data differ by more
+    than :data:`TIS_TOLERANCE` (relative) and 1e-3: the worst block, both figures, and how many.
+    ``incidence``/``azimuth``: ``(label, file angles in degrees)`` of the axes for the message;
+    the largest difference is recorded in the attribute ``{prefix}_tis_vs_albedo``."""
     albedo, cover = tis_albedo(table, coverage=True)
-    tis = np.moveaxis(content["tis"], (0, 1), (2, 1))
     diff = np.abs(tis - albedo)
     bad = (diff > TIS_TOLERANCE * np.maximum(np.abs(albedo), np.abs(tis))) & (diff > 1e-3)
-    table.ds.attrs["zemax_tis_vs_albedo"] = (f"largest |TIS - albedo| {float(diff.max()):.4g} (TIS of the file vs "
-                                             "brdftab's directional albedo of its data)")
+    table.ds.attrs[f"{prefix}_tis_vs_albedo"] = (f"largest |TIS - albedo| {float(diff.max()):.4g} (TIS of the file "
+                                                 "vs brdftab's directional albedo of its data)")
     if not bad.any():
         return
     i, j, c = np.unravel_index(int(np.argmax(np.where(bad, diff, -1))), bad.shape)
-    chan = "" if len(content["channels"]) == 1 else f" {content['channels'][c]}"
-    warnings.warn(f"{path}: TIS{chan} {tis[i, j, c]:.6g} in the file at incidence {content['aoi'][i]:g} deg, rotation "
-                  f"{content['rotation'][j]:g} deg, but the directional albedo of its data is {albedo[i, j, c]:.6g} "
-                  f"(its data cover {cover[i, j, c]:.1%} of the projected hemisphere there; "
+    chan = "" if len(channels) == 1 else f" {channels[c]}"
+    warnings.warn(f"{path}: TIS{chan} {tis[i, j, c]:.6g} in the file at {incidence[0]} {incidence[1][i]:g} deg, "
+                  f"{azimuth[0]} {azimuth[1][j]:g} deg, but the directional albedo of its data is "
+                  f"{albedo[i, j, c]:.6g} (its data cover {cover[i, j, c]:.1%} of the projected hemisphere there; "
                   f"{int(bad.sum())} of {bad.size} "
                   f"blocks differ by more than {TIS_TOLERANCE:.0%})",
-                  BrdftabWarning, stacklevel=4)
+                  BrdftabWarning, stacklevel=5)
 
 
 # --------------------------------------------------------------------------------------------
@@ -486,7 +496,6 @@ def prepare_zemax(brdf, grid, symmetry="Asymmetrical", spectral_content="auto", 
     :mod:`brdftab.colorimetry` with ``illuminant``/``observer``); ``spectral_content =
     "Monochrome"`` of a colour source writes its Y. An anisotropic source needs several sample
     rotations (default every 30°)."""
-    from ..colorimetry import XYZView, from_options, to_colour
     from ..grids import SpecularPolarGrid
     from ..table import Table, tabulate, warn_specular_dropped
 
@@ -502,6 +511,20 @@ def prepare_zemax(brdf, grid, symmetry="Asymmetrical", spectral_content="auto", 
     if not brdf.isotropic and len(target.axes[1]) == 1:
         raise FormatError(f"'{brdf.name}' is anisotropic and one sample rotation would describe it at one incident "
                           "azimuth only; give sample_rotations_deg (e.g. every 30 degrees)")
+    source, _ = monochrome_or_xyz(brdf, spectral_content, illuminant, observer, wavelengths_nm, "a Zemax file")
+    if isinstance(source, Table) and source.grid.equals(target):
+        return source
+    return tabulate(source, target)
+
+
+def monochrome_or_xyz(brdf, spectral_content="auto", illuminant="D65", observer="cie1931-2", wavelengths_nm=None,
+                      what="a Zemax file"):
+    """``(source, content)``: ``brdf`` as the one (``Monochrome``) or three (``XYZ``) channels a
+    Zemax or LightTools file holds. ``auto``: Monochrome for a grey source, XYZ for RGB (linear
+    sRGB, by ``colour.RGB_to_XYZ``) and spectral ones (by :mod:`brdftab.colorimetry` with
+    ``illuminant``/``observer``); Monochrome of a colour source is its Y."""
+    from ..colorimetry import XYZView, from_options, to_colour
+
     content = spectral_content
     if content == "auto":
         content = "Monochrome" if (not brdf.spectral and brdf.channels == ("mono",)) else "XYZ"
@@ -514,13 +537,11 @@ def prepare_zemax(brdf, grid, symmetry="Asymmetrical", spectral_content="auto", 
         if not (content == "Monochrome" and brdf.channels == ("mono",)):
             source = XYZView(brdf, luminance_only=content == "Monochrome")
     elif brdf.channels != ("X", "Y", "Z"):
-        raise FormatError(f"a Zemax file stores Monochrome or XYZ data; '{brdf.name}' has channels "
+        raise FormatError(f"{what} stores Monochrome or XYZ data; '{brdf.name}' has channels "
                           f"{', '.join(brdf.channels)}")
     elif content == "Monochrome":
         source = _Y(source)
-    if isinstance(source, Table) and source.grid.equals(target):
-        return source
-    return tabulate(source, target)
+    return source, content
 
 
 def _Y(base):
@@ -545,14 +566,15 @@ def _Y(base):
     return LuminanceY()
 
 
-def _rounded(table):
-    """``table`` with its values as the file holds them: 7 significant digits; NaN (no data) as 0."""
+def rounded(table, what="a Zemax file"):
+    """``table`` with its values as a text file of :data:`DIGITS` significant digits holds them;
+    NaN (no data) as 0 with one warning (the text formats have no missing marker)."""
     from ..table import Table
 
     v = np.asarray(table.values, float)
     nan = ~np.isfinite(v)
     if nan.any():
-        warnings.warn(f"{int(nan.sum())} of {v.size} samples hold no data (NaN or infinite); a Zemax file has no "
+        warnings.warn(f"{int(nan.sum())} of {v.size} samples hold no data (NaN or infinite); {what} has no "
                       "missing marker: written as 0", BrdftabWarning, stacklevel=4)
     text = np.char.mod(f"%.{DIGITS - 1}E", np.where(nan, 0.0, v))
     back = text.astype(float)
@@ -566,7 +588,7 @@ def _rounded(table):
 
 
 def _stored(payload, **_):
-    return _rounded(payload)
+    return rounded(payload)
 
 
 def write_zemax(table, path, symmetry="Asymmetrical", spectral_content="auto", incidences_deg=None,
@@ -581,7 +603,7 @@ def write_zemax(table, path, symmetry="Asymmetrical", spectral_content="auto", i
         raise FormatError(f"a Zemax file needs a table on a specular-polar grid, not on {grid.describe()}")
     if table.channels not in (("mono",), ("X", "Y", "Z")):
         raise FormatError(f"a Zemax file stores Monochrome or X, Y, Z channels, not {table.channels}")
-    table = _rounded(table)
+    table = rounded(table)
     tis = tis_albedo(table)  # [θi, φi, C]
     ti, pi_, az, rad = (np.degrees(a.values) for a in grid.axes)
     values = np.asarray(table.values, float)
@@ -620,8 +642,7 @@ register(FileFormat(
     extensions=(".bsdf",),
     description="Zemax/Radiant 'BSDF Data Interchange' text .bsdf: BRDF f_r [1/sr] on radial/azimuth angles about "
                 "the mirror direction, Monochrome or XYZ, PlaneSymmetrical or Asymmetrical, TIS = directional "
-                "albedo per incidence (read and write; .bsdf writes RGL unless format = 'zemax'); LightTools "
-                ".bsdf text files are recognised and refused",
+                "albedo per incidence (read and write; .bsdf writes RGL unless format = 'zemax')",
     read=read_zemax,
     write=write_zemax,
     sniff=sniff,
