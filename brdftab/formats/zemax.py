@@ -353,7 +353,6 @@ def _table(content: dict, name: str):
         "model": "unknown",
         "parameters": "{}",
         "isotropic": int(content["rotation"].size == 1),
-        "reciprocal": 1,
         "source_file": name,
         "source_format": "zemax",
         "zemax_symmetry": content["symmetry"],
@@ -364,7 +363,8 @@ def _table(content: dict, name: str):
     table = make_table(values, grid, Layout(content["channels"]), provenance=provenance)
     ds = table.ds
     ds.attrs["origin"] = "measured" if measured else "unknown"
-    for key in ("created", "brdftab_version", "history", "source"):
+    # the file does not say whether its data are reciprocal: the checks judge them as data
+    for key in ("created", "brdftab_version", "history", "source", "reciprocal"):
         ds.attrs.pop(key, None)
     ds["zemax_tis"] = (("theta_i", "phi_i", table.ds["brdf"].dims[-1]),
                        np.moveaxis(content["tis"], (0, 1), (2, 1)),
