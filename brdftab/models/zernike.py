@@ -702,7 +702,7 @@ class ZernikeExpansion(Model):
         else:  # the sample's axes: φi, φr the azimuths of wi and wo (Germer's source at 180° is φi = π)
             phi_i = np.arctan2(wi[:, 1], wi[:, 0])
             phi_r = np.arctan2(wo[:, 1], wo[:, 0])
-        out = np.empty((wi.shape[0], n, 4, 4))
+        out = np.empty((wi.shape[0], lam_nm.size, 4, 4))  # grey: one column per wavelength
         for col, lam_c in enumerate(lam_nm):
             m = self.coefficients.normalized_mueller(rho_i, rho_r, phi_i, phi_r, lam_c / 1000.0)
             out[:, col] = m * f[:, col, None, None]
