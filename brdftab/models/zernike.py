@@ -1,9 +1,9 @@
-"""Zernike-polynomial BRDF expansion (SCATMECH ``ZernikeExpansion_BRDF_Model``), unpolarized f_r,11.
+"""Zernike-polynomial BRDF expansion (SCATMECH ``ZernikeExpansion_BRDF_Model``): f_r,11 and the Mueller matrix.
 
 Koenderink and van Doorn [Koenderink1998] expand a reciprocal, isotropic BRDF in products of
 Zernike polynomials on the Lambert azimuthal equal-area map of the hemisphere onto the unit
 disk, ρ = √2 sin(θ/2). Germer [Germer2017] fitted the full Mueller-matrix BRDF of sintered PTFE
-with this basis; SCATMECH [SCATMECH2021] evaluates it from a coefficient file. This model is
+with this basis; SCATMECH [SCATMECH2021] evaluates it from a coefficient file. ``eval`` is
 the unpolarized element (``zernikeexpansion.cpp``, ``mueller()``)::
 
     f_r,11 = r(λ) Σ_rows a λ^p (1/2π) [(n+1)(m+1)/A]^½ [R_n^l(ρi) R_m^l(ρr) + R_m^l(ρi) R_n^l(ρr)] cos(l Δφ)
@@ -29,7 +29,7 @@ Eight comma- or whitespace-separated columns per line, ``i, j, n, m, k, l, p, a`
 indices, radial orders, azimuthal orders, power of λ, coefficient); blank lines are skipped and
 ``;`` starts a comment, as in SCATMECH's reader. For the 11 rows the code uses **column 6 (l)**
 as the azimuthal order of both radial orders and of cos(lΔφ), and ignores column 5; for the
-other rows (which this unpolarized model reads and checks but does not evaluate) column 5 goes
+other rows (the polarized elements, see below) column 5 goes
 with column 3 and column 6 with column 4. Each line is checked; a bad line (wrong column count,
 a non-numeric or non-integer field, a non-finite coefficient, i or j outside 1…4, i > j, a
 negative radial order, an order n, m, k or l above 100 in magnitude (:data:`MAX_ORDER`; Germer's
@@ -54,11 +54,23 @@ sin |k|φ (k < 0), 1/√2 (k = 0), and c = a λ^p √((n+1)(m+1)) / π per row (
   m_ji += c R_n^k(ρr) R_m^l(ρi) az_k(φr) az_l(φi);
 
 then m_11 = 1, m_31, m_32 and m_43 change sign, and M = f_r,11 · m (so M00 is ``eval``, clamped
-as it is). The azimuths are SCATMECH's with its rotation 0 — φi = π, φr = φs (its scattering
-azimuth, 0 on the specular side) — the frame of Germer's measurements (source at azimuth 180°).
-Germer's ``PTFE.coeff.csv`` at 532 nm reproduces his measured normalized elements at 532 nm
-(``PTFE.data.csv``, 1824 geometries, ``basis="xyxy"``) to an rms of at most 0.012 per element
-(tests/test_polarization.py).
+as it is). The polarized terms depend on φi and φr apart, not only on their difference, so the
+azimuth frame is a parameter, ``frame``:
+
+* ``"incidence"`` (default): every pair is evaluated as Germer measured, in its own plane of
+  incidence with SCATMECH's rotation 0 — φi = π, φr = φs (SCATMECH's scattering azimuth, 0 on the
+  specular side) — in the ``xyxy`` basis of that plane. Isotropic by construction; the polarized
+  reciprocity M(wi → wo) = Q·Mᵀ(wo → wi)·Q then holds only for f_r,11: PTFE.coeff.csv departs
+  from it by up to 0.06·M00 (``mueller_reciprocal`` is False).
+* ``"sample"``: fixed sample axes (brdftab's x, y): φi, φr the azimuths of wi and wo, the ``xyxy``
+  basis built on x̂. Germer's construction (m_ji from m_ij with i ↔ r, the three sign changes) is
+  then exactly reciprocal (to 1e-13 in Mitsuba's basis), but the polarized elements change when
+  the pair turns about the normal (by up to 0.5·M00 for PTFE.coeff.csv), so it is not isotropic.
+
+The two agree at Germer's geometries (source at azimuth 180°). Germer's ``PTFE.coeff.csv`` at
+532 nm reproduces his measured normalized elements at 532 nm (``PTFE.data.csv``, 1824 geometries,
+``basis="xyxy"``) to an rms of 0.011 per element at most (m42); its coherency eigenvalues are all
+≥ 0.03·M00 (realizable) and its median depolarization index is 0.04 (tests/test_polarization.py).
 
 Wavelength
 ----------
@@ -478,11 +490,11 @@ _SCAN_DPHI = np.linspace(0.0, 180.0, 25)
 
 @register
 class ZernikeExpansion(Model):
-    """SCATMECH's ZernikeExpansion_BRDF_Model, f_r,11 (see the module docstring)."""
+    """SCATMECH's ZernikeExpansion_BRDF_Model: f_r,11 and the Mueller matrix (see the module docstring)."""
 
     name = "zernike-expansion"
     summary = ("Zernike-polynomial expansion of a reciprocal isotropic BRDF from a coefficient file "
-               "(SCATMECH ZernikeExpansion_BRDF_Model, f_r,11; Germer's sintered PTFE).")
+               "(SCATMECH ZernikeExpansion_BRDF_Model, f_r,11 and the Mueller matrix; Germer's sintered PTFE).")
     reference = "Koenderink1998; Germer2017; SCATMECH2021"
     params = (
         Param("coefficients", "zernike-coefficients",
