@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from brdftab import models
-from brdftab.brdf import BRDF, Model
+from brdftab.brdf import BRDF, Model, numpy_reference
 from brdftab.errors import ParameterError
 from brdftab.geometry import sph_to_vec
 from brdftab.params import REQUIRED, Param
@@ -168,6 +168,26 @@ def check_mueller(m: BRDF, f, wi, wo, lam, nc, rng):
 def test_every_registered_model_keeps_the_contract(name):
     for i, m in enumerate(draw_models(models.MODELS[name], seed=zlib.crc32(name.encode()))):
         check_contract(m, seed=i)
+
+
+def test_every_polarized_fresnel_term_keeps_the_contract():
+    """Each polarized Fresnel component inside ``microfacet``, its parameters drawn from its
+    declarations (the polarized clauses; the rest is the models' contract above)."""
+    from brdftab.models.components import COMPONENTS
+
+    wanted = {name: cls for name, cls in COMPONENTS["fresnel"].items() if cls.polarized}
+    assert set(wanted) >= {"dielectric", "conductor", "rayleigh-rice"}
+    rng = np.random.default_rng(0)
+    wi, wo = _directions(rng, 1000), _directions(rng, 1000)
+    for name, cls in sorted(wanted.items()):
+        for _ in range(2):
+            kwargs = {p.name: _draw_value(p, rng, 0) for p in cls.params if p.kind != "material"}
+            m = models.create("microfacet", alpha=float(rng.uniform(0.05, 0.8)), fresnel=name, **kwargs)
+            assert m.polarized
+            lam = m.wavelengths if m.spectral else None
+            with numpy_reference():  # no kernel to compile for the comparison
+                f = m.eval(wi, wo, lam)
+            check_mueller(m, f, wi, wo, lam, f.shape[-1], rng)
 
 
 class _Negative(Model):
