@@ -15,8 +15,10 @@ source, Chipman's and Mitsuba's convention; −1 when it is left circular — SC
 exp(−iωt) Jones calculus makes (1, i) left circular):
 
 ``mitsuba`` (the default)
-    e1 = normalize(wi × wo) for both beams, perpendicular to the scattering plane (Mitsuba's
-    ``measured_polarized``: x = normalize(ω_light × ω_view)); circular +1.
+    e1 = normalize(wi × wo) for both beams, perpendicular to the scattering plane; circular +1.
+    It is the frame of Mitsuba's ``measured_polarized`` tables (x = normalize(ω_light × ω_view)):
+    a ``.pbsdf`` holding one generic constant matrix C evaluates, rotated into these frames, to
+    C·cosθi (Mitsuba's eval includes the cosine of the light's direction; tested).
 ``plane``
     SCATMECH's ``BRDF_Model::plane``: e1 = normalize(k_in × k_out) = −(the ``mitsuba`` e1), a
     180° turn that leaves Stokes vectors unchanged; circular −1. So ``plane`` and ``mitsuba``

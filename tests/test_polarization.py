@@ -144,6 +144,30 @@ def test_conversions_compose_and_invert():
         P.convert_basis(M, wi, wo, "mitsuba", "xyyx")
 
 
+def test_mitsuba_basis_is_measured_polarizeds_frame(mitsuba, tmp_path):
+    """A ``.pbsdf`` holding one constant, generic Mueller matrix C (every element different): Mitsuba's
+    ``measured_polarized`` returns C·cosθ(light) in its implicit Stokes bases; rotated (by Mitsuba)
+    into the ``mitsuba`` basis's frames it is C again, at random directions."""
+    from brdftab.formats._tensor import write_tensor_file
+
+    C = 0.2 * np.array([[1.0, 0.3, -0.2, 0.1], [0.25, 0.6, 0.15, -0.05], [-0.1, 0.2, 0.5, 0.3],
+                        [0.05, -0.1, -0.25, 0.4]], np.float32)
+    axes = {"theta_h": np.linspace(0, np.pi / 2, 4), "theta_d": np.linspace(0, np.pi / 2, 4),
+            "phi_d": np.linspace(-np.pi, np.pi, 5)}
+    fields = {k: v.astype(np.float32)[None, :] for k, v in axes.items()}
+    fields["wvls"] = np.array([450, 500, 550, 600, 650], np.uint16)
+    fields["M"] = np.ascontiguousarray(np.broadcast_to(C, (5, 4, 4, 5, 4, 4)), np.float32)
+    write_tensor_file(tmp_path / "c.pbsdf", fields)
+    bsdf = mitsuba.load_dict({"type": "measured_polarized", "filename": str(tmp_path / "c.pbsdf")})
+    wi, wo = _pairs(20, seed=8, mu_min=0.1)
+    e_in, e_out = P.basis_frames("mitsuba", wi, wo)
+    got = np.array([_mitsuba_in_our_basis(mitsuba, bsdf, a, b, c, d) for a, b, c, d in zip(wi, wo, e_in, e_out)])
+    assert np.allclose(got, C, atol=3e-7)
+    # SCATMECH's plane basis has the same frames up to 180°, but the other circular sign
+    plane = P.convert_basis(np.broadcast_to(C, got.shape), wi, wo, "mitsuba", "plane")
+    assert np.abs(plane - got).max() > 0.05
+
+
 # --------------------------------------------------------------------------------------------
 # Fresnel, Jones, Rayleigh–Rice Q
 
