@@ -194,7 +194,7 @@ class BRDF:
         ``polarized`` raises a :class:`~brdftab.errors.ParameterError`."""
         check_basis(basis)
         if not self.polarized:
-            raise ParameterError("basis", f"{self.describe()} is not polarized: it has no Mueller matrix, only "
+            raise ParameterError("eval_mueller", f"{self.describe()} is not polarized: it has no Mueller matrix, only "
                                  "f_r,11 (eval)")
         wi, wo = as_directions(wi, wo)
         lam = self.layout.resolve(wavelengths)
