@@ -21,6 +21,13 @@ Metadata every BRDF carries:
   in the formats that can hold it and never re-derived from the values; the checks give
   measured and unknown data the measured-data defaults (no reciprocity assumed unless
   declared, negative samples reported, not refused).
+
+Polarization (optional): a BRDF with ``polarized = True`` also evaluates its Mueller matrix,
+``brdf.eval_mueller(wi, wo, wavelengths=None, basis="mitsuba")`` → ``ndarray[..., n_channels, 4, 4]``
+in sr⁻¹ (without the cosine), in one of the Stokes bases of :mod:`brdftab.polarization` (Mitsuba's
+by default). ``eval`` stays f_r,11, the unpolarized BRDF, and equals the Mueller matrix's element
+(0, 0) (the model contract test checks both on every polarized model). The same input rules as
+``eval`` hold: 0 at and below the horizon, NaN for non-finite directions.
 """
 
 from __future__ import annotations
@@ -33,6 +40,7 @@ from .channels import Layout
 from .errors import ParameterError
 from .geometry import as_directions, normalize
 from .params import Kind, parse_params, register_kind
+from .polarization import DEFAULT_BASIS, check_basis, convert_basis
 
 __all__ = ["BRDF", "Model", "EVAL_CHUNK", "ORIGINS", "numpy_reference", "compiled_enabled"]
 
@@ -168,6 +176,57 @@ class BRDF:
                     sel = slice(None)
                 out[sel] = self._eval(wi[sel], wo[sel], lam, n)
         return out.reshape(lead + (n,))
+
+    #: Whether :meth:`eval_mueller` is available (a subclass that sets it implements :meth:`_mueller`).
+    polarized: bool = False
+    #: The basis :meth:`_mueller` returns its matrices in (one of :data:`brdftab.polarization.BASES`).
+    mueller_basis: str = DEFAULT_BASIS
+    #: Declared polarized reciprocity M(wi → wo) = Q·Mᵀ(wo → wi)·Q in matching frames
+    #: (:func:`brdftab.polarization.reciprocity_transform`); None: as :attr:`reciprocal`.
+    mueller_reciprocal: bool | None = None
+
+    def eval_mueller(self, wi, wo, wavelengths=None, basis: str = DEFAULT_BASIS, *,
+                     assume_unit: bool = False) -> np.ndarray:
+        """The Mueller-matrix BRDF in sr⁻¹ (without the cosine), shape ``broadcast(wi, wo).shape[:-1]
+        + (n_channels, 4, 4)``, in the Stokes ``basis`` (:data:`brdftab.polarization.BASES`; the
+        incident beam propagates along −wi, the outgoing one along wo). Its element (0, 0) is
+        :meth:`eval`. ``wavelengths`` and ``assume_unit`` as for :meth:`eval`. A BRDF that is not
+        ``polarized`` raises a :class:`~brdftab.errors.ParameterError`."""
+        check_basis(basis)
+        if not self.polarized:
+            raise ParameterError("eval_mueller", f"{self.describe()} is not polarized: it has no Mueller matrix, only "
+                                 "f_r,11 (eval)")
+        wi, wo = as_directions(wi, wo)
+        lam = self.layout.resolve(wavelengths)
+        n = self.layout.n_out(lam)
+        lead = wi.shape[:-1]
+        wi = wi.reshape(-1, 3)
+        wo = wo.reshape(-1, 3)
+        out = np.zeros((wi.shape[0], n, 4, 4))
+        if assume_unit:
+            above = np.flatnonzero((wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
+        else:
+            wi = _unit(wi, "wi")
+            wo = _unit(wo, "wo")
+            finite = np.isfinite(wi).all(axis=1) & np.isfinite(wo).all(axis=1)
+            out[~finite] = np.nan
+            with np.errstate(invalid="ignore"):
+                above = np.flatnonzero(finite & (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
+        step = max(1, (self.eval_batch or EVAL_CHUNK) // 16)
+        with np.errstate(all="ignore"):
+            for start in range(0, above.size, step):
+                sel = above[start:start + step]
+                out[sel] = self._mueller_in(wi[sel], wo[sel], lam, n, basis)
+        return out.reshape(lead + (n, 4, 4))
+
+    def _mueller_in(self, wi, wo, lam, n, basis) -> np.ndarray:
+        """:meth:`_mueller` re-expressed in ``basis``: ``(M, n, 4, 4)``."""
+        return convert_basis(self._mueller(wi, wo, lam, n), wi, wo, self.mueller_basis, basis)
+
+    def _mueller(self, wi, wo, lam, n) -> np.ndarray:
+        """The Mueller matrices at ``(M, 3)`` unit above-horizon pairs in :attr:`mueller_basis`:
+        ``(M, n, 4, 4)`` (polarized BRDFs implement it)."""
+        raise NotImplementedError
 
     def _eval(self, wi, wo, lam, n) -> np.ndarray:
         """Evaluate at ``(M, 3)`` above-horizon pairs; return ``(M, n)``.

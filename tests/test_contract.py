@@ -4,7 +4,10 @@ Parameters are drawn from each model's declared parameters — ranges, choices, 
 new model is covered without a line here. The contract: f broadcasts over leading shapes; is
 0 at and below the horizon; is finite and >= 0 above it; is reciprocal to 1e-12 where the
 model declares reciprocity; and its directional albedo is <= 1 + 1e-3 where it declares
-energy conservation. Two deliberately broken toy models prove the contract can fail.
+energy conservation. A polarized model's Mueller matrix broadcasts the same way, is 0 below the
+horizon, finite above it, has f (``eval``) as its element (0, 0) in every basis, and obeys
+polarized reciprocity M(wi → wo) = Q·Mᵀ(wo → wi)·Q (Q = diag(1, 1, −1, 1)) in Mitsuba's basis
+where declared. Deliberately broken toy models prove the contract can fail.
 """
 
 import zlib
@@ -14,11 +17,12 @@ import numpy as np
 import pytest
 
 from brdftab import models
-from brdftab.brdf import BRDF, Model
+from brdftab.brdf import BRDF, Model, numpy_reference
 from brdftab.errors import ParameterError
 from brdftab.geometry import sph_to_vec
 from brdftab.params import REQUIRED, Param
 from brdftab.integrate import directional_albedo
+from brdftab.polarization import BASES, reciprocity_transform
 
 N_CONFIGS = 6
 _ROOT = Path(__file__).resolve().parents[1]
@@ -125,6 +129,11 @@ def check_contract(m: BRDF, seed=0):
         rel = np.abs(f - g) / np.maximum(np.abs(f), 1e-300)
         worst = float(np.max(np.where(f > 0, rel, np.abs(g))))
         assert worst <= 1e-12, f"{m.describe()}: declared reciprocal, relative asymmetry {worst:.3g}"
+    if m.polarized:
+        check_mueller(m, f[:1000], wi[:1000], wo[:1000], lam, nc, rng)
+    else:
+        with pytest.raises(ParameterError, match="not polarized"):
+            m.eval_mueller(wi[:2], wo[:2], lam)
     # energy conservation where declared
     if m.energy_conserving:
         # brdftab's adaptive quadrature (nodes follow the lobe, however narrow)
@@ -132,10 +141,53 @@ def check_contract(m: BRDF, seed=0):
         assert np.all(a <= 1 + 1e-3), f"{m.describe()}: declared energy-conserving, albedo up to {a.max():.6g}"
 
 
+def check_mueller(m: BRDF, f, wi, wo, lam, nc, rng):
+    """The polarized clauses of :func:`check_contract`, on the pairs ``wi``, ``wo`` where ``eval``
+    gave ``f``."""
+    a = _directions(rng, 3).reshape(3, 1, 3)
+    b = _directions(rng, 2).reshape(1, 2, 3)
+    M = m.eval_mueller(a, b, lam)
+    assert M.shape == (3, 2, nc, 4, 4), f"{m.describe()}: Mueller shape {M.shape}, expected (3, 2, {nc}, 4, 4)"
+    below = sph_to_vec(np.radians([90.0, 95.0, 179.0]), rng.uniform(0, 6, 3))
+    assert np.all(m.eval_mueller(below, _directions(rng, 3), lam) == 0), f"{m.describe()}: Mueller not 0 below the horizon"
+    scale = max(float(np.max(np.abs(f))), 1e-300)
+    for basis in BASES:
+        M = m.eval_mueller(wi, wo, lam, basis=basis)
+        assert np.all(np.isfinite(M)), f"{m.describe()}: non-finite Mueller elements above the horizon ({basis})"
+        worst = float(np.max(np.abs(M[..., 0, 0] - f))) / scale
+        assert worst <= 1e-12, f"{m.describe()}: eval differs from M00 in basis {basis} by {worst:.3g} (relative)"
+    declared = m.reciprocal if m.mueller_reciprocal is None else m.mueller_reciprocal
+    if declared:
+        M = m.eval_mueller(wi, wo, lam)
+        back = reciprocity_transform(m.eval_mueller(wo, wi, lam))
+        worst = float(np.max(np.abs(M - back))) / scale
+        assert worst <= 1e-12, f"{m.describe()}: declared reciprocal, polarized asymmetry {worst:.3g} (M00 scale)"
+
+
 @pytest.mark.parametrize("name", sorted(models.MODELS))
 def test_every_registered_model_keeps_the_contract(name):
     for i, m in enumerate(draw_models(models.MODELS[name], seed=zlib.crc32(name.encode()))):
         check_contract(m, seed=i)
+
+
+def test_every_polarized_fresnel_term_keeps_the_contract():
+    """Each polarized Fresnel component inside ``microfacet``, its parameters drawn from its
+    declarations (the polarized clauses; the rest is the models' contract above)."""
+    from brdftab.models.components import COMPONENTS
+
+    wanted = {name: cls for name, cls in COMPONENTS["fresnel"].items() if cls.polarized}
+    assert set(wanted) >= {"dielectric", "conductor", "rayleigh-rice"}
+    rng = np.random.default_rng(0)
+    wi, wo = _directions(rng, 1000), _directions(rng, 1000)
+    for name, cls in sorted(wanted.items()):
+        for _ in range(2):
+            kwargs = {p.name: _draw_value(p, rng, 0) for p in cls.params if p.kind != "material"}
+            m = models.create("microfacet", alpha=float(rng.uniform(0.05, 0.8)), fresnel=name, **kwargs)
+            assert m.polarized
+            lam = m.wavelengths if m.spectral else None
+            with numpy_reference():  # no kernel to compile for the comparison
+                f = m.eval(wi, wo, lam)
+            check_mueller(m, f, wi, wo, lam, f.shape[-1], rng)
 
 
 class _Negative(Model):
@@ -177,8 +229,38 @@ class _Hot(Model):
         return np.full((wi.shape[0], n), 1.5 / np.pi)
 
 
+class _Polarizer(Model):
+    name = "toy-polarizer"
+    summary = "broken on purpose: a Mueller matrix whose M00 is not eval"
+    params = (Param("albedo", "float", "albedo", default=0.5, minimum=0.0, maximum=1.0),)
+    polarized = True
+
+    def _setup(self, albedo):
+        self.albedo = albedo
+
+    def _eval(self, wi, wo, lam, n):
+        return np.full((wi.shape[0], n), self.albedo / np.pi)
+
+    def _mueller(self, wi, wo, lam, n):
+        out = np.zeros((wi.shape[0], n, 4, 4))
+        out[:, :, :2, :2] = 0.5 * self.albedo / np.pi  # an ideal polarizer's half: M00 is f/2
+        return out
+
+
+class _Retarder(_Polarizer):
+    name = "toy-retarder"
+    summary = "broken on purpose: a symmetric S2/S3 coupling, not polarized-reciprocal"
+
+    def _mueller(self, wi, wo, lam, n):
+        out = np.zeros((wi.shape[0], n, 4, 4))
+        out[:, :, 0, 0] = self.albedo / np.pi
+        out[:, :, 2, 3] = out[:, :, 3, 2] = 0.5 * self.albedo / np.pi * wi[:, 2:3]
+        return out
+
+
 @pytest.mark.parametrize("toy, clause", [(_Negative, "negative"), (_FakeReciprocal, "reciprocal"),
-                                         (_Hot, "energy-conserving")])
+                                         (_Hot, "energy-conserving"), (_Polarizer, "M00"),
+                                         (_Retarder, "polarized asymmetry")])
 def test_contract_catches_broken_models(monkeypatch, toy, clause):
     monkeypatch.setitem(models.MODELS, toy.name, toy)
     assert toy.name in models.MODELS  # registered like any model, so the contract test above would run it

@@ -11,7 +11,8 @@
 
 Channels combine as in :func:`brdftab.channels.combine_layouts`: grey terms broadcast to the
 others; RGB and spectral terms cannot be mixed. A combination is isotropic (reciprocal) when
-every term is.
+every term is. ``sum`` and ``scale`` are polarized when every term is: their Mueller matrices
+add (each term's converted to Mitsuba's basis first) and scale like f.
 
 Reference: F. E. Nicodemus et al., NBS Monograph 160 (1977) — BRDFs of independent
 scattering mechanisms add.
@@ -44,6 +45,8 @@ class Sum(Model):
         self.layout = combine_layouts([t.layout for t in terms], names=[f"terms[{i}]" for i in range(len(terms))])
         self.isotropic = all(t.isotropic for t in terms)
         self.reciprocal = all(t.reciprocal for t in terms)
+        self.polarized = all(t.polarized for t in terms)
+        self.mueller_reciprocal = all(_mueller_reciprocal(t) for t in terms)
         # a sum of energy-conserving terms may exceed 1: nothing is claimed
 
     @property
@@ -77,6 +80,18 @@ class Sum(Model):
             out = out + t._eval(wi, wo, lam, n)
         return out
 
+    def _mueller(self, wi, wo, lam, n):
+        out = self.terms[0]._mueller_in(wi, wo, lam, n, self.mueller_basis)
+        for t in self.terms[1:]:
+            out = out + t._mueller_in(wi, wo, lam, n, self.mueller_basis)
+        return out
+
+
+def _mueller_reciprocal(brdf) -> bool:
+    """Declared polarized reciprocity (:attr:`~brdftab.brdf.BRDF.mueller_reciprocal`, else
+    ``reciprocal``)."""
+    return brdf.reciprocal if brdf.mueller_reciprocal is None else brdf.mueller_reciprocal
+
 
 class _OneTerm(Model):
     """A combinator of one ``term``: its lobe is the term's (quadrature hints)."""
@@ -106,6 +121,9 @@ class Scale(_OneTerm):
         self.layout = combine_layouts([factor.layout, term.layout], names=("factor", "term"))
         self.isotropic = term.isotropic
         self.reciprocal = term.reciprocal
+        self.polarized = term.polarized
+        self.mueller_basis = term.mueller_basis
+        self.mueller_reciprocal = _mueller_reciprocal(term)
         self.energy_conserving = term.energy_conserving and bool(np.all(factor.values <= 1.0))
 
     def quadrature_parts(self):
@@ -135,6 +153,10 @@ class Scale(_OneTerm):
 
     def _eval(self, wi, wo, lam, n):
         return self.term._eval(wi, wo, lam, n) * np.asarray(self.factor.at(lam, n))[None, :]
+
+    def _mueller(self, wi, wo, lam, n):
+        s = np.broadcast_to(np.asarray(self.factor.at(lam, n), float), (n,))
+        return self.term._mueller(wi, wo, lam, n) * s[None, :, None, None]
 
 
 @register

@@ -15,7 +15,13 @@ A new D, G or F is one class here or in its own module, registered with :func:`r
   channel ``layout`` its parameters imply. Models call ``F_pair(wi, wo, cos_d, lam, n_out)``,
   which is ``F(cos_d, …)`` for every term that depends on the microfacet angle only; a term
   that depends on the whole geometry (the Rayleigh–Rice factor Q of θi, θs and φs) overrides
-  ``F_pair`` instead, so the simple terms stay as simple as they are.
+  ``F_pair`` instead, so the simple terms stay as simple as they are. A **polarized** Fresnel
+  term (``polarized = True``: ``dielectric``, ``conductor``, ``rayleigh-rice``) also gives its
+  Mueller matrix ``F_mueller(wi, wo, cos_d, lam, n_out)`` ``(M, n, 4, 4)`` in the pair's
+  ``mitsuba`` basis (:mod:`brdftab.polarization`), whose element (0, 0) is ``F_pair``: the facet
+  terms compute it in the facet's s/p frame (s = normalize(h × k) per beam, the facet's plane of
+  incidence) and rotate it into and out of that frame; the Rayleigh–Rice term converts its
+  Jones matrix from SCATMECH's ``psps`` basis.
 
 A distribution declares its own parameters; ``microfacet`` offers the union of every
 registered distribution's parameters and accepts each only with the distribution that uses it.
@@ -52,7 +58,8 @@ from .distributions import (beckmann_D_scalar, beckmann_lambda_scalar, d_beckman
                             ggx_lambda_scalar, lambda_beckmann, lambda_ggx)
 from .fresnel import (INDEX_MAX, INDEX_MIN, conductor_scalar, dielectric_scalar, fresnel_conductor,
                       fresnel_dielectric, fresnel_schlick, schlick_scalar)
-from .rayleigh_rice import q_unpolarized, q_unpolarized_scalar
+from ..polarization import basis_frames, convert_basis, fresnel_mueller, rotate_frames
+from .rayleigh_rice import q_mueller, q_unpolarized, q_unpolarized_scalar
 
 __all__ = ["COMPONENTS", "Component", "register", "get", "create", "Distribution", "Shadowing", "Fresnel"]
 
@@ -337,6 +344,31 @@ class Fresnel(Component):
         overrides it."""
         return self.F(cos_d, lam, n)
 
+    #: Whether :meth:`F_mueller` is available.
+    polarized = False
+
+    def F_mueller(self, wi, wo, cos_d, lam, n):
+        """The Mueller matrix ``(M, n, 4, 4)`` of the term for the pairs ``wi``, ``wo[M, 3]``, in
+        their ``mitsuba`` basis (polarized terms only)."""
+        raise NotImplementedError
+
+
+def facet_to_pair(F, wi, wo):
+    """Mueller matrices ``F (M, n, 4, 4)`` of reflection on the facet with normal h = normalize(wi
+    + wo), given in the facet's s/p frame (e1 = normalize(h × k) for each beam), rotated into the
+    pair's ``mitsuba`` basis."""
+    h = wi + wo
+    h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+    e_in, e_out = basis_frames("mitsuba", wi, wo)
+    s_in = np.cross(h, -wi)
+    s_out = np.cross(h, wo)
+    norm_in = np.linalg.norm(s_in, axis=-1, keepdims=True)
+    norm_out = np.linalg.norm(s_out, axis=-1, keepdims=True)
+    # wi = wo: the facet's plane of incidence is undefined; take the basis's own vector
+    s_in = np.where(norm_in > 1e-12, s_in / np.where(norm_in > 0, norm_in, 1.0), e_in)
+    s_out = np.where(norm_out > 1e-12, s_out / np.where(norm_out > 0, norm_out, 1.0), e_out)
+    return rotate_frames(F, -wi, s_in, e_in, wo, s_out, e_out)
+
 
 @register
 class NoFresnel(Fresnel):
@@ -377,6 +409,12 @@ class Dielectric(Fresnel):
     def F(self, cos_d, lam, n):
         return fresnel_dielectric(cos_d[:, None], self.values["n"].at(lam, n))
 
+    polarized = True
+
+    def F_mueller(self, wi, wo, cos_d, lam, n):
+        eta = np.broadcast_to(np.asarray(self.values["n"].at(lam, n), float), (n,))
+        return facet_to_pair(fresnel_mueller(cos_d[:, None], eta[None, :]), wi, wo)
+
     @staticmethod
     def jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c):
         return dielectric_scalar(cos_d, p[c, 0])
@@ -400,6 +438,13 @@ class Conductor(Fresnel):
 
     def F(self, cos_d, lam, n):
         return fresnel_conductor(cos_d[:, None], self.values["n"].at(lam, n), self.values["k"].at(lam, n))
+
+    polarized = True
+
+    def F_mueller(self, wi, wo, cos_d, lam, n):
+        eta = np.broadcast_to(np.asarray(self.values["n"].at(lam, n), float), (n,))
+        kap = np.broadcast_to(np.asarray(self.values["k"].at(lam, n), float), (n,))
+        return facet_to_pair(fresnel_mueller(cos_d[:, None], eta[None, :], kap[None, :]), wi, wo)
 
     @staticmethod
     def jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c):
@@ -436,6 +481,15 @@ class RayleighRice(Fresnel):
     @staticmethod
     def jit_F(wix, wiy, wiz, wox, woy, woz, cos_d, p, c):
         return q_unpolarized_scalar(wix, wiy, wiz, wox, woy, woz, p[c, 0], p[c, 1])
+
+    polarized = True
+
+    def F_mueller(self, wi, wo, cos_d, lam, n):
+        eta = np.broadcast_to(np.asarray(self.values["n"].at(lam, n), float), (n,))
+        kap = np.broadcast_to(np.asarray(self.values["k"].at(lam, n), float), (n,))
+        m = q_mueller(wi[:, None, :], wo[:, None, :], eta[None, :], kap[None, :])
+        return convert_basis(m, wi, wo, "psps", "mitsuba")
+
 
 
 # --------------------------------------------------------------------------------------------

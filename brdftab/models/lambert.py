@@ -2,6 +2,9 @@
 
 ``f = ρ / π`` [sr⁻¹] with ρ the directional-hemispherical reflectance (albedo) per channel.
 
+Polarized, it is the ideal depolarizer: the Mueller matrix is diag(ρ/π, 0, 0, 0) in every basis
+(reflected light is unpolarized whatever arrives).
+
 Reference: J. H. Lambert, *Photometria* (1760); F. E. Nicodemus et al., *Geometrical
 Considerations and Nomenclature for Reflectance*, NBS Monograph 160 (1977), §5.
 """
@@ -27,6 +30,8 @@ class Lambert(Model):
               default=1.0, minimum=0.0, maximum=1.0),
     )
 
+    polarized = True
+
     def _setup(self, albedo):
         self.albedo = albedo
         self.layout = albedo.layout
@@ -44,3 +49,8 @@ class Lambert(Model):
     def _eval(self, wi, wo, lam, n):
         rho = self.albedo.at(lam, n)
         return np.broadcast_to(rho / np.pi, (wi.shape[0], n)).copy()
+
+    def _mueller(self, wi, wo, lam, n):
+        out = np.zeros((wi.shape[0], n, 4, 4))
+        out[:, :, 0, 0] = self._eval(wi, wo, lam, n)
+        return out

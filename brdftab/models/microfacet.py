@@ -8,6 +8,12 @@ anisotropic α_x, α_y), a shadowing term G (``smith``, ``smith-height-correlate
 (``distribution = "ggx"``, ``fresnel = "conductor"``, ``n``, ``k``); each component's own
 parameters are accepted only with that component.
 
+Polarized: with a ``dielectric``, ``conductor`` or ``rayleigh-rice`` Fresnel term the model has a
+Mueller matrix, D·G·M_F/(4 cosθi cosθo), M_F the term's Fresnel Mueller matrix of the facet
+h (computed in the facet's s/p frame and rotated into and out of it; see
+:mod:`brdftab.models.components`). In the ``mitsuba`` basis it agrees with Mitsuba 3's polarized
+``roughconductor`` (tests/test_polarization.py).
+
 References: [Cook1982] the D·G·F/(4 cosθi cosθo) form and the V-groove G; [Walter2007] Eq. 20,
 the same form with GGX and Smith G; [Heitz2014] Smith Λ, height-correlated G2, anisotropy;
 [Bitterling2024] Eqs. 11–15, GGX + separable Smith for Pyromark 2500.
@@ -72,6 +78,7 @@ class Microfacet(Model):
         self.alpha_y = getattr(self.dist, "alpha_y", None)
         self.isotropic = self.dist.isotropic
         self.layout = self.fres.layout
+        self.polarized = self.fres.polarized
         # D·G·F/(4 cos cos) conserves energy when G accounts for masking (G = 1 does not),
         # and when F does not exceed 1 (the Rayleigh–Rice Q can, away from the mirror direction)
         self.energy_conserving = shadowing != "none" and fresnel != "rayleigh-rice"
@@ -151,3 +158,10 @@ class Microfacet(Model):
         base = self.dist.D(h) * self.shadow.G(wi, wo, h, self.dist) / (4.0 * wi[:, 2] * wo[:, 2])
         f = self.fres.F_pair(wi, wo, cos_d, lam, n)
         return base[:, None] * f if np.ndim(f) else np.repeat(base[:, None], n, axis=1)
+
+    def _mueller(self, wi, wo, lam, n):
+        h = wi + wo
+        norm = np.sqrt(np.einsum("...i,...i->...", h, h))
+        h = h / norm[:, None]
+        base = self.dist.D(h) * self.shadow.G(wi, wo, h, self.dist) / (4.0 * wi[:, 2] * wo[:, 2])
+        return base[:, None, None, None] * self.fres.F_mueller(wi, wo, 0.5 * norm, lam, n)

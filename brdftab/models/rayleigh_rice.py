@@ -21,6 +21,13 @@ cosφs = −(wi_xy · wo_xy)/(|wi_xy| |wo_xy|), sinφs = −(wi_xy × wo_xy)_z/(
 normal incidence (or θs = 0) the plane of incidence is undefined; the unpolarized sums do not
 depend on the choice there (φs := 0 is used).
 
+**Polarized form.** The amplitudes are the Jones matrix [[q_ss, q_ps], [q_sp, q_pp]] acting on
+(E_s, E_p) in SCATMECH's ``psps`` basis (s = normalize(ẑ × k) per beam, exp(−iωt)):
+:func:`q_jones`; :func:`q_mueller` is its Mueller matrix (SCATMECH's Jones-to-Mueller conversion),
+whose element (0, 0) is the half-sum ½ Σ Q_αβ (:func:`q_unpolarized`). At the mirror direction it
+is the Fresnel Mueller matrix (tested against Mitsuba's ``specular_reflection`` after
+:func:`brdftab.polarization.convert_basis`).
+
 Identities (tested): at the mirror direction q_ss = −r_s, q_pp = ±r_p (Fresnel amplitudes), so
 Q_ss = R_s, Q_pp = R_p and the cross terms vanish; Q_ss = 0 at φs = 90°; exchanging the incident
 and scattered directions swaps Q_ps and Q_sp and keeps Q_ss, Q_pp.
@@ -51,7 +58,7 @@ import numpy as np
 
 from .._jit import device
 
-__all__ = ["scattering_azimuth", "q_amplitudes", "q_components", "q_sum", "q_unpolarized"]
+__all__ = ["scattering_azimuth", "q_amplitudes", "q_components", "q_sum", "q_unpolarized", "q_jones", "q_mueller"]
 
 
 def scattering_azimuth(wi, wo):
@@ -110,6 +117,21 @@ def q_unpolarized(wi, wo, n, k=0.0):
     """Half-sum ½(Q_ss + Q_pp + Q_ps + Q_sp): the unpolarized factor, equal to the Fresnel
     reflectance at the mirror direction."""
     return 0.5 * q_sum(wi, wo, n, k)
+
+
+def q_jones(wi, wo, n, k=0.0):
+    """The Jones matrices ``[..., 2, 2]`` = [[q_ss, q_ps], [q_sp, q_pp]] (first index: scattered
+    polarization; SCATMECH's ``psps`` basis) of :func:`q_amplitudes`."""
+    q_ss, q_pp, q_ps, q_sp = q_amplitudes(wi, wo, n, k)
+    return np.stack([np.stack([q_ss, q_ps], axis=-1), np.stack([q_sp, q_pp], axis=-1)], axis=-2)
+
+
+def q_mueller(wi, wo, n, k=0.0):
+    """Mueller matrices ``[..., 4, 4]`` of :func:`q_jones`, in SCATMECH's ``psps`` basis and circular
+    sign (:func:`brdftab.polarization.mueller_from_jones`); element (0, 0) is :func:`q_unpolarized`."""
+    from ..polarization import mueller_from_jones
+
+    return mueller_from_jones(q_jones(wi, wo, n, k), circular=-1)
 
 
 @device

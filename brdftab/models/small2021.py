@@ -60,7 +60,7 @@ from .combinators import Rotated, Sum
 from .fresnel import INDEX_MAX, INDEX_MIN
 from .lambert import Lambert
 from .distributions import beckmann_D_scalar
-from .rayleigh_rice import q_sum, q_sum_scalar
+from .rayleigh_rice import q_mueller, q_sum, q_sum_scalar
 from ._registry import register
 
 __all__ = ["Small2021Peak", "Small2021Diffraction", "SolarCellSmall2021"]
@@ -114,6 +114,21 @@ class Small2021Peak(_GivenParams, Model):
     @property
     def lobe_width(self) -> float:
         return self.m
+
+    #: Polarized: Q's Jones matrix (SCATMECH's psps basis); M00 = ½ Σ Q_αβ, so the plain sum of
+    #: Eq. 6 is 2·M00 of the Jones–Mueller matrix.
+    polarized = True
+    mueller_basis = "psps"
+
+    def _mueller(self, wi, wo, lam, n):
+        h = wi + wo
+        h = h / np.linalg.norm(h, axis=-1, keepdims=True)
+        eta = np.broadcast_to(np.asarray(self.n.at(lam, n), float), (n,))
+        kap = np.broadcast_to(np.asarray(self.k.at(lam, n), float), (n,))
+        m = q_mueller(wi[:, None, :], wo[:, None, :], eta[None, :], kap[None, :])
+        base = self.dist.D(h) / (2.0 * (wi[:, 2] + wo[:, 2]) ** 2)
+        rho = np.broadcast_to(np.asarray(self.rho_s.at(lam, n), float), (n,))
+        return (2.0 * rho[None, :] * base[:, None])[:, :, None, None] * m
 
     def _kernel(self, lam, n):
         run = _peak_kernel()

@@ -1,9 +1,9 @@
-"""Zernike-polynomial BRDF expansion (SCATMECH ``ZernikeExpansion_BRDF_Model``), unpolarized f_r,11.
+"""Zernike-polynomial BRDF expansion (SCATMECH ``ZernikeExpansion_BRDF_Model``): f_r,11 and the Mueller matrix.
 
 Koenderink and van Doorn [Koenderink1998] expand a reciprocal, isotropic BRDF in products of
 Zernike polynomials on the Lambert azimuthal equal-area map of the hemisphere onto the unit
 disk, ρ = √2 sin(θ/2). Germer [Germer2017] fitted the full Mueller-matrix BRDF of sintered PTFE
-with this basis; SCATMECH [SCATMECH2021] evaluates it from a coefficient file. This model is
+with this basis; SCATMECH [SCATMECH2021] evaluates it from a coefficient file. ``eval`` is
 the unpolarized element (``zernikeexpansion.cpp``, ``mueller()``)::
 
     f_r,11 = r(λ) Σ_rows a λ^p (1/2π) [(n+1)(m+1)/A]^½ [R_n^l(ρi) R_m^l(ρr) + R_m^l(ρi) R_n^l(ρr)] cos(l Δφ)
@@ -29,7 +29,7 @@ Eight comma- or whitespace-separated columns per line, ``i, j, n, m, k, l, p, a`
 indices, radial orders, azimuthal orders, power of λ, coefficient); blank lines are skipped and
 ``;`` starts a comment, as in SCATMECH's reader. For the 11 rows the code uses **column 6 (l)**
 as the azimuthal order of both radial orders and of cos(lΔφ), and ignores column 5; for the
-other rows (which this unpolarized model reads and checks but does not evaluate) column 5 goes
+other rows (the polarized elements, see below) column 5 goes
 with column 3 and column 6 with column 4. Each line is checked; a bad line (wrong column count,
 a non-numeric or non-integer field, a non-finite coefficient, i or j outside 1…4, i > j, a
 negative radial order, an order n, m, k or l above 100 in magnitude (:data:`MAX_ORDER`; Germer's
@@ -39,6 +39,39 @@ error naming the file and the line. Evaluation holds the radial and azimuthal fa
 bounded number of direction pairs at a time (:data:`EXPANSION_BYTES`), so memory does not grow
 with the number of rows or the orders. |l| > n is allowed:
 Germer's ``PTFE.coeff.csv`` has 60 such off-diagonal rows, whose R_n^l is 0 in SCATMECH too.
+
+Full Mueller matrix
+-------------------
+The model is polarized: ``eval_mueller`` gives the whole matrix from the file's other rows, as
+SCATMECH's ``mueller()`` builds it, in SCATMECH's ``xyxy`` basis (:mod:`brdftab.polarization`;
+converted to any other on request). With K_n^k(ρ, φ) = R_n^|k|(ρ) az_k(φ), az_k = cos kφ (k > 0),
+sin |k|φ (k < 0), 1/√2 (k = 0), and c = a λ^p √((n+1)(m+1)) / π per row (columns 3–6: n, m, k, l):
+
+* diagonal rows (i = j > 1): m_ii += c [K_n^k(i) K_m^l(r) + K_m^l(i) K_n^k(r)] / √(2 + 2 δ_nm δ_kl)
+  — written out as SCATMECH has it: R_n^k(ρi) R_m^l(ρr) az_k(φi) az_l(φr) + R_m^l(ρi) R_n^k(ρr)
+  az_k(φr) az_l(φi);
+* off-diagonal rows (i < j): m_ij += c R_n^k(ρi) R_m^l(ρr) az_k(φi) az_l(φr) and
+  m_ji += c R_n^k(ρr) R_m^l(ρi) az_k(φr) az_l(φi);
+
+then m_11 = 1, m_31, m_32 and m_43 change sign, and M = f_r,11 · m (so M00 is ``eval``, clamped
+as it is). The polarized terms depend on φi and φr apart, not only on their difference, so the
+azimuth frame is a parameter, ``frame``:
+
+* ``"incidence"`` (default): every pair is evaluated as Germer measured, in its own plane of
+  incidence with SCATMECH's rotation 0 — φi = π, φr = φs (SCATMECH's scattering azimuth, 0 on the
+  specular side) — in the ``xyxy`` basis of that plane. Isotropic by construction; the polarized
+  reciprocity M(wi → wo) = Q·Mᵀ(wo → wi)·Q then holds only for f_r,11: PTFE.coeff.csv departs
+  from it by up to 0.06·M00 (``mueller_reciprocal`` is False).
+* ``"sample"``: fixed sample axes (brdftab's x, y): φi, φr the azimuths of wi and wo, the ``xyxy``
+  basis built on x̂. Germer's construction (m_ji from m_ij with i ↔ r, the three sign changes) is
+  then exactly reciprocal (to 1e-13 in Mitsuba's basis), but the polarized elements change when
+  the pair turns about the normal (by up to 0.5·M00 for PTFE.coeff.csv), so it is not isotropic.
+
+The two agree at Germer's geometries (source at azimuth 180°). Germer's ``PTFE.coeff.csv`` at
+532 nm reproduces his measured normalized elements at 532 nm (``PTFE.data.csv``, 1824 geometries,
+``basis="xyxy"``) to an rms of 0.011 per element at most (m42), and his data at 351, 633 and
+1064 nm to 0.018, 0.013 and 0.017; its coherency eigenvalues are all
+≥ 0.03·M00 (realizable) and its median depolarization index is 0.04 (tests/test_polarization.py).
 
 Wavelength
 ----------
@@ -213,6 +246,42 @@ class ZernikeCoefficients:
         c = np.zeros(len(self._keys))
         np.add.at(c, self._key_of_row, self._a11 * lam_pow * self._pre)
         return self._keys, c
+
+    def normalized_mueller(self, rho_i, rho_r, phi_i, phi_r, lam_um: float) -> np.ndarray:
+        """SCATMECH's normalized Mueller matrix ``[M, 4, 4]`` (m_11 = 1, the sign changes of m_31,
+        m_32, m_43 applied; see the module docstring) from every row but the 11 ones, at
+        ``ρi, ρr`` and SCATMECH's azimuths ``φi, φr`` ``[M]`` [rad], wavelength ``lam_um`` [µm]."""
+        out = np.zeros(np.shape(rho_i) + (4, 4))
+        radial = {}
+
+        def R(order, az, rho, key):
+            got = radial.get((order, abs(az), key))
+            if got is None:
+                got = radial[(order, abs(az), key)] = radial_zernike(order, az, rho)
+            return got
+
+        def az(k, phi):
+            return np.cos(k * phi) if k > 0 else (np.sin(-k * phi) if k < 0 else np.full(np.shape(phi), 0.5 ** 0.5))
+
+        terms = {}
+        for (i, j, n, m, k, l, p), a in zip(self.rows.tolist(), self.a):
+            if i == 1 and j == 1:
+                continue
+            terms[(i, j, n, m, k, l)] = terms.get((i, j, n, m, k, l), 0.0) + a * float(lam_um) ** p
+        for (i, j, n, m, k, l), a in terms.items():
+            c = a * math.sqrt((n + 1.0) * (m + 1.0)) / math.pi
+            if i == j:
+                c /= math.sqrt(2.0 + 2.0 * (n == m and k == l))
+                out[:, i - 1, j - 1] += c * (R(n, k, rho_i, 0) * R(m, l, rho_r, 1) * az(k, phi_i) * az(l, phi_r)
+                                             + R(m, l, rho_i, 0) * R(n, k, rho_r, 1) * az(k, phi_r) * az(l, phi_i))
+            else:
+                out[:, i - 1, j - 1] += c * R(n, k, rho_i, 0) * R(m, l, rho_r, 1) * az(k, phi_i) * az(l, phi_r)
+                out[:, j - 1, i - 1] += c * R(n, k, rho_r, 1) * R(m, l, rho_i, 0) * az(k, phi_r) * az(l, phi_i)
+        out[:, 0, 0] = 1.0
+        out[:, 2, 0] *= -1.0
+        out[:, 2, 1] *= -1.0
+        out[:, 3, 2] *= -1.0
+        return out
 
     def to_json(self):
         return {"path": str(self.path), "sha256": self.sha256}
@@ -422,11 +491,11 @@ _SCAN_DPHI = np.linspace(0.0, 180.0, 25)
 
 @register
 class ZernikeExpansion(Model):
-    """SCATMECH's ZernikeExpansion_BRDF_Model, f_r,11 (see the module docstring)."""
+    """SCATMECH's ZernikeExpansion_BRDF_Model: f_r,11 and the Mueller matrix (see the module docstring)."""
 
     name = "zernike-expansion"
     summary = ("Zernike-polynomial expansion of a reciprocal isotropic BRDF from a coefficient file "
-               "(SCATMECH ZernikeExpansion_BRDF_Model, f_r,11; Germer's sintered PTFE).")
+               "(SCATMECH ZernikeExpansion_BRDF_Model, f_r,11 and the Mueller matrix; Germer's sintered PTFE).")
     reference = "Koenderink1998; Germer2017; SCATMECH2021"
     params = (
         Param("coefficients", "zernike-coefficients",
@@ -440,19 +509,28 @@ class ZernikeExpansion(Model):
               units="nm", default=351.0, minimum=0.0, exclusive_minimum=True),
         Param("fit_max_nm", "float", "Longest wavelength the coefficients were fitted at (warning above).",
               units="nm", default=1064.0, minimum=0.0, exclusive_minimum=True),
+        Param("frame", "choice", "Azimuth frame of the polarized elements: 'incidence' (each pair in its plane "
+              "of incidence, as measured: isotropic) or 'sample' (fixed sample axes x, y: exactly reciprocal, "
+              "not isotropic). f_r,11 is the same in both.", default="incidence", choices=("incidence", "sample")),
     )
     isotropic = True
     reciprocal = True
     #: A fitted expansion does not guarantee albedo <= 1 (PTFE.coeff.csv: ~1.005 at 30°).
     energy_conserving = False
 
-    def _setup(self, coefficients, wavelength_nm, scale, fit_min_nm, fit_max_nm):
+    def _setup(self, coefficients, wavelength_nm, scale, fit_min_nm, fit_max_nm, frame):
         if scale.kind == "channels":
             raise ParameterError("scale", "expected one number or a spectrum {wavelengths_nm, values}: the "
                                  f"model is grey, got {scale.values.size} channel values")
         if fit_min_nm > fit_max_nm:
             raise ParameterError("fit_min_nm", f"must not exceed fit_max_nm ({fit_min_nm:g} > {fit_max_nm:g})")
         self.coefficients = coefficients
+        self.frame = frame
+        # the polarized elements' azimuth frame (module docstring): native xyxy in the plane of
+        # incidence; on the sample's axes the matrix is converted to Mitsuba's basis at once
+        self.mueller_basis = "xyxy" if frame == "incidence" else "mitsuba"
+        self.isotropic = frame == "incidence"
+        self.mueller_reciprocal = frame == "sample"
         self.wavelength_nm = wavelength_nm
         self.scale = scale
         self.fit_range_nm = (fit_min_nm, fit_max_nm)
@@ -619,6 +697,34 @@ class ZernikeExpansion(Model):
         self.evaluated += f.size
         f[neg] = 0.0
         return f
+
+    polarized = True
+
+    def _mueller(self, wi, wo, lam, n):
+        from .. import polarization as P
+
+        f = self._eval(wi, wo, lam, n)
+        lam_nm = np.array([self.wavelength_nm]) if lam is None else np.asarray(lam, float)
+        rho_i = np.hypot(wi[:, 0], wi[:, 1]) / np.sqrt(1.0 + wi[:, 2])
+        rho_r = np.hypot(wo[:, 0], wo[:, 1]) / np.sqrt(1.0 + wo[:, 2])
+        if self.frame == "incidence":
+            # SCATMECH's rotation 0: φi = π, φr = φs, wo's azimuth in the plane of incidence's axes
+            xhat, yhat = P.incidence_axes(wi)
+            phi_i = np.pi
+            phi_r = np.arctan2(np.sum(wo * yhat, axis=-1), np.sum(wo * xhat, axis=-1))
+        else:  # the sample's axes: φi, φr the azimuths of wi and wo (Germer's source at 180° is φi = π)
+            phi_i = np.arctan2(wi[:, 1], wi[:, 0])
+            phi_r = np.arctan2(wo[:, 1], wo[:, 0])
+        out = np.empty((wi.shape[0], lam_nm.size, 4, 4))  # grey: one column per wavelength
+        for col, lam_c in enumerate(lam_nm):
+            m = self.coefficients.normalized_mueller(rho_i, rho_r, phi_i, phi_r, lam_c / 1000.0)
+            out[:, col] = m * f[:, col, None, None]
+        if self.frame == "sample":  # SCATMECH's xyxy on the fixed axes → Mitsuba's basis
+            x, y = np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0])
+            e_in, e_out = P.xyxy_frames(wi, wo, x, y)
+            t_in, t_out = P.basis_frames("mitsuba", wi, wo)
+            out = P.rotate_frames(out, -wi, e_in, t_in, wo, e_out, t_out) * P.CONJUGATE
+        return out
 
     def expansion(self, wi, wo, wavelengths=None) -> np.ndarray:
         """The unclamped expansion (SCATMECH's value, possibly negative) at unit directions
