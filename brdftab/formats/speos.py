@@ -611,7 +611,7 @@ def _num(x) -> str:
 
 
 def _angles(vals) -> str:
-    return "\t".join(repr(float(x)) for x in np.degrees(vals))
+    return "\t".join(f"{x:.12g}" for x in np.degrees(vals))
 
 
 def _check_table(table, where):

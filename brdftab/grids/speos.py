@@ -108,6 +108,10 @@ class SpeosGrid(Grid):
             out["comment"] = "phi_o - phi_i - pi: 0 on the mirror side, counter-clockwise seen from above"
         return out
 
+    def incident_azimuths(self) -> np.ndarray:
+        """brdftab's φi [rad] of the rotation nodes (π − rotation, in [0, 2π), increasing)."""
+        return np.sort(np.mod(np.pi - self.axes[1].values, TWO_PI))
+
     def _directions(self, idx):
         return self.pair_directions([a.values[i] for a, i in zip(self.axes, idx)])
 
