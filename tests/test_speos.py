@@ -332,6 +332,8 @@ def test_a_real_anisotropicbsdf_reads_validates_and_converts_to_netcdf(tmp_path)
     assert p["reference"] == [15.0, 0.0]
     a = _trapezoid_albedo(p["theta"], p["phi"], p["values"][0, 0])
     assert scale[0] == pytest.approx(p["spectrum"][0, 1] / (100 * a), rel=0.005)
+    # (formats/speos.md quotes these: the data's albedo 0.424 at 15 deg, a percentage of 13.45)
+    assert round(table.ds.attrs["speos_albedo_of_the_data"], 3) == 0.424 and round(scale[0], 3) == 0.317
     # the checks judge it as measured data: no failure, and its albedo at the reference incidence
     # is the file's percentage / 100 (the normalization)
     from brdftab.checks import run_checks
@@ -374,7 +376,7 @@ def test_the_real_speos_file_agrees_with_the_measurement_it_was_converted_from()
         zemax = brdftab.open(RADIANT)
     rng = np.random.default_rng(0)
     n = 600
-    for inc in (15.0, 45.0):
+    for inc, bound in ((15.0, 0.005), (45.0, 0.02)):  # measured: 0.39 % and 1.5 %
         wi = sph_to_vec(np.full(n, np.radians(inc)), rng.uniform(0, 2 * np.pi, n))
         wo = sph_to_vec(np.radians(rng.uniform(2, 70, n)), rng.uniform(0, 2 * np.pi, n))
         wo_turned = wo * [-1, -1, 1]
@@ -384,9 +386,9 @@ def test_the_real_speos_file_agrees_with_the_measurement_it_was_converted_from()
         ok = np.isfinite(a) & np.isfinite(b) & np.isfinite(c) & (b > 0)
         assert ok.sum() > 400
         r = a[ok] / b[ok]
-        assert np.percentile(np.abs(r / np.median(r) - 1), 95) < 0.025  # measured: 0.4 % at 15 deg, 1.8 % at 45
+        assert np.percentile(np.abs(r / np.median(r) - 1), 95) < bound
         r_turned = c[ok] / b[ok]
-        assert np.percentile(np.abs(r_turned / np.median(r_turned) - 1), 95) > 0.2
+        assert np.percentile(np.abs(r_turned / np.median(r_turned) - 1), 95) > 0.4  # measured: 52 % and 106 %
 
 
 def test_a_real_brdf_reads_and_converts_to_netcdf(tmp_path):
@@ -409,6 +411,8 @@ def test_a_real_brdf_reads_and_converts_to_netcdf(tmp_path):
         assert np.allclose(s, s[0], rtol=1e-12)
         a = _trapezoid_albedo(p["theta"], p["phi"], p["values"][i, 0])
         assert s[0] == pytest.approx(p["percent"][i, 0] / (100 * a), rel=0.02)
+    # (formats/speos.md quotes the scales of the four incidences)
+    assert np.allclose(table.ds.attrs["speos_normalization"], [33, 48, 4.1, 1.6], rtol=0.03)
     from brdftab.convert import convert
 
     with warnings.catch_warnings():
