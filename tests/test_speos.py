@@ -485,3 +485,36 @@ def test_seed_specs_tabulate_to_speos_files_validated(tmp_path, seed, fmt, incid
     if fmt == "brdf":
         parsed = {**parsed, "rotation": [0.0], "values": parsed["values"][:, 0][None]}
     _check_nodes(model, parsed, n=25, seed=5)
+
+
+@pytest.mark.parametrize("kind", ["anisotropicbsdf", "brdf"])
+def test_mutated_files_give_a_format_error_or_a_table_never_a_crash(kind):
+    """Words of the real files deleted, duplicated or replaced at random: the parser answers each
+    with its content or one FormatError line naming the line."""
+    from brdftab.formats.speos import parse_anisotropicbsdf, parse_brdf
+
+    parse = parse_anisotropicbsdf if kind == "anisotropicbsdf" else parse_brdf
+    lines = lzma.decompress((REAL_ANISO if kind == "anisotropicbsdf" else REAL_BRDF).read_bytes()).decode().splitlines()
+    rng = np.random.default_rng(7)
+    junk = ["", "-1", "0", "1", "2", "1e999", "nan", "x", "3.5", "999999", "End of file", "1 1", "19 37"]
+    errors = 0
+    for _ in range(50):
+        mutated = list(lines)
+        for _ in range(rng.integers(1, 4)):
+            k = int(rng.integers(min(len(mutated), 40)) if rng.random() < 0.6 else rng.integers(len(mutated)))
+            words = mutated[k].split()
+            if words:
+                words[int(rng.integers(len(words)))] = str(rng.choice(junk))
+            op = rng.integers(3)
+            if op == 0:
+                mutated[k] = " ".join(words)
+            elif op == 1:
+                del mutated[k]
+            else:
+                mutated.insert(k, " ".join(words))
+        try:
+            parse(f"m.{kind}", "\n".join(mutated))
+        except FormatError as exc:
+            errors += 1
+            assert "\n" not in str(exc) and str(exc).startswith(f"m.{kind}: ")
+    assert errors > 20
