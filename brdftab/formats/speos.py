@@ -39,7 +39,11 @@ incidences around θref, the first one below it; the nearest rotation); for ``*.
 by its own percentage. The reader applies that scale and records it (``speos_normalization``);
 one percentage (or equal ones) gives a grey table, different ones a spectral table. The writer
 writes f_r (flag 1) and percentages of 100 × brdftab's directional albedo of the values as
-written, so the scale it reads back is 1 within the 9 written digits.
+written, so the scale it reads back is 1 within the 9 written digits. A spectral source fills a
+``.brdf`` file with one table per wavelength; an ``.anisotropicbsdf`` file holds one
+distribution (the mean over the wavelengths) and the spectrum of the source's albedo at the
+reference incidence, and the table written is that separable approximation (what the checks
+judge). RGB and XYZ sources are written as their luminance Y.
 
 A transmission side is skipped with a warning (brdftab holds reflection only); a file without
 reflection data is refused. The origin is ``measured`` when the comment or description says so,
@@ -418,7 +422,7 @@ def read_anisotropicbsdf(path):
         table = _make(content, fr[..., None] * scale, path.name, "speos", content["wavelength"], content["rotation"])
     ds = table.ds
     ds.attrs.update({
-        "speos_quantity": quantity + "; scaled so that the directional albedo at the reference incidence equals the "
+        "source_quantity": quantity + "; scaled so that the directional albedo at the reference incidence equals the "
                                      "file's percentage / 100 (Speos' normalization)",
         "speos_reference_incidence_deg": np.asarray(content["reference"], float),
         "speos_albedo_of_the_data": a0,
@@ -457,7 +461,7 @@ def read_brdf(path):
     table = _make(content, values, path.name, "speos-brdf", content["wavelength"] if fr.shape[-1] > 1 else None)
     ds = table.ds
     ds.attrs.update({
-        "speos_quantity": quantity + "; each table scaled so that its directional albedo equals its percentage / 100 "
+        "source_quantity": quantity + "; each table scaled so that its directional albedo equals its percentage / 100 "
                                      "(Speos' normalization)",
         "speos_normalization": scale.ravel(),
         "speos_percent": percent.ravel(),
@@ -530,22 +534,20 @@ def _native(brdf_file):
 
 
 def _grey(brdf, where):
-    """``brdf`` as one grey channel: as it is when grey, else its luminance Y through colour-science
-    (a Speos table holds one angular distribution; its colour is the spectrum of percentages)."""
-    from ..colorimetry import XYZView, from_options, to_colour
+    """A colour (RGB or XYZ) ``brdf`` as one grey channel, its luminance Y through colour-science
+    (a Speos table holds grey or spectral data, not colour channels); a grey one as it is."""
+    from ..colorimetry import XYZView
     from .zemax import _Y
 
-    if not brdf.spectral and brdf.channels == ("mono",):
+    if brdf.channels == ("mono",):
         return brdf
-    warnings.warn(f"a {where} holds one grey distribution: '{brdf.name}' ({'spectral' if brdf.spectral else ', '.join(brdf.channels)}) "
-                  "is written as its luminance Y (CIE 1931, through colour-science)", BrdftabWarning, stacklevel=5)
-    if brdf.spectral:
-        return _Y(to_colour(brdf, from_options("D65", "cie1931-2", "XYZ")))
+    warnings.warn(f"a {where} holds grey or spectral data: '{brdf.name}' ({', '.join(brdf.channels)}) is written as "
+                  "its luminance Y (CIE 1931, through colour-science)", BrdftabWarning, stacklevel=5)
     if brdf.channels == ("R", "G", "B"):
         return XYZView(brdf, luminance_only=True)
     if brdf.channels == ("X", "Y", "Z"):
         return _Y(brdf)
-    raise FormatError(f"a {where} stores one grey distribution; '{brdf.name}' has channels {', '.join(brdf.channels)}")
+    raise FormatError(f"a {where} holds grey or spectral data; '{brdf.name}' has channels {', '.join(brdf.channels)}")
 
 
 def _prepare(brdf_file):
@@ -573,6 +575,22 @@ def _prepare(brdf_file):
         if not brdf.isotropic and len(target.axes[1]) == 1:
             raise FormatError(f"'{brdf.name}' is anisotropic and one anisotropy angle would describe it at one "
                               "incident azimuth only; give anisotropy_angles_deg (e.g. every 30 degrees)")
+        if brdf.spectral:
+            lam = spectrum_wavelengths_nm if spectrum_wavelengths_nm is not None else brdf.layout.wavelengths
+            if lam is None:
+                raise FormatError(f"'{brdf.name}' is spectral: give spectrum_wavelengths_nm, the wavelengths of the "
+                                  f"{where}")
+            lam = np.asarray(lam, float).ravel()
+            if (isinstance(brdf, Table) and brdf.grid.equals(target)
+                    and np.array_equal(np.asarray(brdf.layout.wavelengths, float), lam)):
+                table = brdf
+            else:
+                table = tabulate(brdf, target, wavelengths=lam)
+            if not brdf_file:
+                ref = (float(np.degrees(target.axes[0].values[0])) if reference_incidence_deg is None
+                       else float(reference_incidence_deg), float(np.degrees(target.axes[1].values[0])))
+                table = _separable(table, ref)
+            return _rounded(table)
         source = _grey(brdf, where)
         if isinstance(source, Table) and source.grid.equals(target):
             table = source
@@ -583,10 +601,35 @@ def _prepare(brdf_file):
     return prepare
 
 
-def _rounded(table):
-    """``table`` with its values as the file holds them (DIGITS significant digits; NaN as 0)."""
+def _with_values(table, values):
     from ..table import Table
 
+    ds = table.ds.copy(deep=False)
+    ds["brdf"] = ds["brdf"].copy(data=values)
+    out = Table(ds)
+    out.origin = table.origin
+    return out
+
+
+def _separable(table, ref):
+    """A spectral table as an ``.anisotropicbsdf`` holds it: one angular distribution S (the mean
+    over the wavelengths) scaled per wavelength to the table's directional albedo at the reference
+    incidence, S · a(λ) / A(S) (what the reader returns)."""
+    g = table.grid
+    inc, rot = np.degrees(g.axes[0].values), np.degrees(g.axes[1].values)
+    v = np.asarray(table.values, float)
+    a_lam = _reference_albedo(node_albedo(table), inc, rot, ref)
+    shape = v.mean(axis=-1, keepdims=True)
+    a_shape = _reference_albedo(node_albedo(_with_values(table, np.repeat(shape, v.shape[-1], axis=-1))), inc, rot,
+                                ref)[0]
+    if not (math.isfinite(a_shape) and a_shape > 0):
+        raise FormatError(f"'{table.name}' reflects nothing at the reference incidence {ref[0]:g} deg: a Speos "
+                          ".anisotropicbsdf file scales its table to the albedo there")
+    return _with_values(table, shape * (a_lam / a_shape))
+
+
+def _rounded(table):
+    """``table`` with its values as the file holds them (DIGITS significant digits; NaN as 0)."""
     v = np.asarray(table.values, float)
     bad = ~np.isfinite(v)
     if bad.any():
@@ -595,11 +638,7 @@ def _rounded(table):
     back = np.char.mod(f"%.{DIGITS}g", np.where(bad, 0.0, v)).astype(float)
     if np.array_equal(back, v):
         return table
-    ds = table.ds.copy(deep=False)
-    ds["brdf"] = ds["brdf"].copy(data=back)
-    out = Table(ds)
-    out.origin = table.origin
-    return out
+    return _with_values(table, back)
 
 
 def _stored(payload, **_):
@@ -619,8 +658,8 @@ def _check_table(table, where):
 
     if not isinstance(table.grid, SpeosGrid):
         raise FormatError(f"a {where} needs a table on a speos grid, not on {table.grid.describe()}")
-    if table.spectral or table.channels != ("mono",):
-        raise FormatError(f"a {where} stores one grey distribution, not channels {table.channels}")
+    if not table.spectral and table.channels != ("mono",):
+        raise FormatError(f"a {where} stores a grey or spectral distribution, not channels {table.channels}")
 
 
 def _head_lines(table, header):
@@ -646,15 +685,23 @@ def write_anisotropicbsdf(table, path, incidences_deg=None, anisotropy_angles_de
     inc, rot, theta, phi = (a.values for a in g.axes)
     ref = float(np.degrees(inc[0])) if reference_incidence_deg is None else float(reference_incidence_deg)
     ref_rot = float(np.degrees(rot[0]))
-    a0 = _reference_albedo(node_albedo(table), np.degrees(inc), np.degrees(rot), (ref, ref_rot))[0]
-    lam = DEFAULT_WAVELENGTHS_NM if spectrum_wavelengths_nm is None else np.asarray(spectrum_wavelengths_nm, float)
-    values = np.asarray(table.values, float)[..., 0]
+    a_ref = _reference_albedo(node_albedo(table), np.degrees(inc), np.degrees(rot), (ref, ref_rot))
+    if table.spectral:
+        # one distribution (the wavelength reflecting most: the table is separable) and the
+        # spectrum of albedos at the reference incidence
+        lam = np.asarray(table.layout.wavelengths, float)
+        percent = 100.0 * a_ref
+        values = np.asarray(table.values, float)[..., int(np.argmax(a_ref))]
+    else:
+        lam = DEFAULT_WAVELENGTHS_NM if spectrum_wavelengths_nm is None else np.asarray(spectrum_wavelengths_nm, float)
+        percent = np.full(len(lam), 100.0 * a_ref[0])
+        values = np.asarray(table.values, float)[..., 0]
     lines = _head_lines(table, ANISO_HEADER) + [
         "1\t0\t0", "1\t0", "1", str(rot.size), _angles(rot)]
     for _ in range(rot.size):
         lines += [str(inc.size), _angles(inc)]
     lines += [f"{ref!r}\t{ref_rot!r}", "wavelength (nm)\tcoefficient (%)", str(len(lam))]
-    lines += [f"{float(x)!r}\t{_num(100.0 * a0)}" for x in lam]
+    lines += [f"{float(x)!r}\t{_num(p)}" for x, p in zip(lam, percent)]
     with open(path, "w", encoding="ascii", newline="\n") as fh:
         fh.write("\n".join(lines) + "\n")
         for j in range(rot.size):
@@ -674,16 +721,22 @@ def write_brdf(table, path, incidences_deg=None, anisotropy_angles_deg=None, the
         raise FormatError("a Speos .brdf file holds isotropic data: one anisotropy angle, not "
                           f"{len(g.axes[1])}")
     inc, _, theta, phi = (a.values for a in g.axes)
-    albedo = node_albedo(table)[:, 0, 0]
-    lam = (550.0,) if spectrum_wavelengths_nm is None else np.asarray(spectrum_wavelengths_nm, float)
-    values = np.asarray(table.values, float)[:, 0, :, :, 0]
+    albedo = node_albedo(table)[:, 0]  # [θi, C]
+    values = np.asarray(table.values, float)[:, 0]  # [θi, θo, φ, C]
+    if table.spectral:  # one table per wavelength
+        lam = np.asarray(table.layout.wavelengths, float)
+    else:  # the same table at each wavelength
+        lam = (550.0,) if spectrum_wavelengths_nm is None else np.asarray(spectrum_wavelengths_nm, float)
+        albedo = np.repeat(albedo, len(lam), axis=1)
+        values = np.repeat(values, len(lam), axis=-1)
     lines = _head_lines(table, BRDF_HEADER) + ["1\t0", "1", f"{inc.size}\t{len(lam)}", _angles(inc),
                                                 "\t".join(repr(float(x)) for x in lam)]
     with open(path, "w", encoding="ascii", newline="\n") as fh:
         fh.write("\n".join(lines) + "\n")
         for i in range(inc.size):
-            for _ in lam:
-                fh.write(_num(100.0 * albedo[i]) + "\n" + "\n".join(_table_lines(theta, phi, values[i])) + "\n")
+            for m in range(len(lam)):
+                fh.write(_num(100.0 * albedo[i, m]) + "\n" + "\n".join(_table_lines(theta, phi, values[i, ..., m]))
+                         + "\n")
         fh.write("End of file\n")
 
 
@@ -703,9 +756,10 @@ register(FileFormat(
                 "theta_o, phi) with phi = 0 on the mirror side (phi_o = phi_i + 180 deg + phi, phi_i = 180 deg - "
                 "anisotropy angle); values proportional to f_r (flag 1) or to the intensity f_r cos(theta_o) (flag 0, "
                 "divided by cos(theta_o) on reading), scaled on reading so that the directional albedo at the "
-                "reference incidence equals the spectrum's percentage / 100; writes f_r (flag 1) of a grey "
-                "distribution (colour sources as their luminance Y) and a flat spectrum of 100 x brdftab's "
-                "directional albedo at the reference incidence (read and write; reflection only)",
+                "reference incidence equals the spectrum's percentage / 100; writes f_r (flag 1) of one "
+                "distribution and a spectrum of 100 x brdftab's directional albedo at the reference incidence "
+                "(flat for grey sources; per wavelength for spectral ones, the distribution their mean; RGB and XYZ "
+                "sources as their luminance Y) (read and write; reflection only)",
     read=read_anisotropicbsdf,
     write=write_anisotropicbsdf,
     sniff=sniff_anisotropic,
@@ -718,8 +772,8 @@ register(FileFormat(
               "anisotropic sources every 30).", default=None, minimum=0.0, maximum=360.0),
         Param("reference_incidence_deg", "float", "Incidence of the spectrum measurement in degrees (default the "
               "first incidence).", default=None, minimum=0.0, maximum=90.0),
-        Param("spectrum_wavelengths_nm", "floats", "Wavelengths of the (flat) spectrum in nm (default 360, 830).",
-              units="nm", default=None, minimum=0.0),
+        Param("spectrum_wavelengths_nm", "floats", "Wavelengths of the spectrum in nm (default: 360, 830 for a grey "
+              "source, a spectral source's own).", units="nm", default=None, minimum=0.0),
     ),
     precision=PRECISION,
 ))
@@ -731,9 +785,9 @@ register(FileFormat(
                 "(incidence, theta_o, phi) with phi = 0 on the mirror side (phi_o = phi_i + 180 deg + phi) per "
                 "wavelength; values proportional to f_r (flag 1) or to the intensity f_r cos(theta_o) (flag 0, "
                 "divided by cos(theta_o) on reading), each table scaled on reading so that its directional albedo "
-                "equals its percentage / 100; writes f_r (flag 1) of a grey distribution (colour sources as their "
-                "luminance Y), each table's percentage 100 x brdftab's directional albedo (read and write; "
-                "reflection only)",
+                "equals its percentage / 100; writes f_r (flag 1), one table per wavelength (spectral sources) or "
+                "the same at each (grey sources; RGB and XYZ ones as their luminance Y), each table's percentage "
+                "100 x brdftab's directional albedo (read and write; reflection only)",
     read=read_brdf,
     write=write_brdf,
     sniff=sniff_brdf,
@@ -742,8 +796,8 @@ register(FileFormat(
     check_options=check_options,
     stored=_stored,
     params=_GRID_PARAMS + (
-        Param("spectrum_wavelengths_nm", "floats", "Wavelengths of the tables in nm, the same distribution at each "
-              "(default 550).", units="nm", default=None, minimum=0.0),
+        Param("spectrum_wavelengths_nm", "floats", "Wavelengths of the tables in nm (default: 550 for a grey source, "
+              "the same table at each; a spectral source's own).", units="nm", default=None, minimum=0.0),
     ),
     precision=PRECISION,
 ))
