@@ -157,6 +157,12 @@ def test_the_convention_in_plain_angles():
     for f, i in zip(frac, idx):
         assert np.allclose(np.asarray(f)[keep], i[keep], atol=1e-9)
     assert not outside.any()
+    # a spec's [grid] builds the same grid (degrees at the surface)
+    from brdftab.grids import grid_from_config
+
+    cfg = grid_from_config({"type": "speos", "theta_i_deg": [0, 30, 60], "speos_rotation_deg": [0, 35, 250],
+                            "theta_o_deg": [0, 20, 50, 90], "speos_phi_deg": [0, 45, 180, 300, 360]})
+    assert cfg.equals(g)
 
 
 def _model():
