@@ -215,14 +215,20 @@ def test_an_anisotropic_source_is_written_with_anisotropy_angles(tmp_path):
     path = tmp_path / "a.anisotropicbsdf"
     with pytest.raises(FormatError, match="anisotropic.*anisotropy_angles_deg"):
         brdftab.save(model, path, anisotropy_angles_deg=[0], **SMALL)
-    brdftab.save(model, path, anisotropy_angles_deg=list(range(0, 360, 45)),
+    brdftab.save(model, path, anisotropy_angles_deg=list(range(10, 360, 45)),
                  **{**SMALL, "incidences_deg": [0, 30, 60]})
     p = mini_aniso(path.read_text())
     _check_nodes(model, p, n=30, seed=11)
     table = brdftab.open(path)
     assert not table.isotropic and len(table.grid.axes[1]) == 8
-    # the table answers at the file's own directions (a node at rotation 45 deg, incidence 30)
-    wi, wo = convention(30, 45, 42, 60)
+    # the energy and albedo checks sweep its incident azimuths, phi_i = 180 - angle
+    from brdftab.checks import run_checks
+
+    report = {o.name: o for o in run_checks(table, only=["energy", "albedo"]).outcomes}
+    assert report["energy"].status == "pass"
+    assert np.allclose(report["albedo"].data["phi_i_deg"], sorted((180 - r) % 360 for r in range(10, 360, 45)))
+    # the table answers at the file's own directions (a node at rotation 55 deg, incidence 30)
+    wi, wo = convention(30, 55, 42, 60)
     assert table.eval(wi, wo)[0] == pytest.approx(p["values"][1, 1, 14, 10], rel=1e-8)
 
 
