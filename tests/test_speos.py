@@ -371,6 +371,18 @@ def test_a_real_anisotropicbsdf_reads_validates_and_converts_to_netcdf(tmp_path)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BrdftabWarning)
         assert np.array_equal(nc.eval(x, y), table.eval(x, y), equal_nan=True)
+    # and back: the netCDF table written as Speos holds the file's nodes, its numbers times the
+    # scale, and the file's percentage (the albedo at 15 deg of what it holds)
+    from brdftab.convert import convert
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", BrdftabWarning)
+        convert(tmp_path / "r.nc", tmp_path / "back.anisotropicbsdf", progress=False)
+    q = mini_aniso((tmp_path / "back.anisotropicbsdf").read_text())
+    assert q["incidence"] == p["incidence"] and q["rotation"] == p["rotation"] and q["reference"] == p["reference"]
+    assert np.array_equal(q["theta"], p["theta"]) and np.array_equal(q["phi"], p["phi"])
+    assert np.allclose(q["values"], p["values"] * scale[0], rtol=1e-8, atol=0)
+    assert np.allclose(q["spectrum"][:, 1], p["spectrum"][0, 1], rtol=1e-8)
 
 
 def test_the_real_speos_file_agrees_with_the_measurement_it_was_converted_from():

@@ -700,7 +700,7 @@ def write_anisotropicbsdf(table, path, incidences_deg=None, anisotropy_angles_de
         "1\t0\t0", "1\t0", "1", str(rot.size), _angles(rot)]
     for _ in range(rot.size):
         lines += [str(inc.size), _angles(inc)]
-    lines += [f"{ref!r}\t{ref_rot!r}", "wavelength (nm)\tcoefficient (%)", str(len(lam))]
+    lines += [f"{ref:.12g}\t{ref_rot:.12g}", "wavelength (nm)\tcoefficient (%)", str(len(lam))]
     lines += [f"{float(x)!r}\t{_num(p)}" for x, p in zip(lam, percent)]
     with open(path, "w", encoding="ascii", newline="\n") as fh:
         fh.write("\n".join(lines) + "\n")
