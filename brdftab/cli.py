@@ -288,7 +288,8 @@ def tabulate(ctx, specs, out_dir, overwrite, allow_invalid, levels, settings, pr
 #: format modules (xarray, netCDF4, the models); a test holds it equal to the registry.
 USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("zarr", (".zarr",)), ("merl", (".binary",)),
                   ("rgl", (".bsdf",)), ("exr", (".exr",)), ("zemax", (".bsdf",)),
-                  ("lighttools", (".bsdf",)), ("mbsdf", (".mbsdf",)))
+                  ("lighttools", (".bsdf",)), ("mbsdf", (".mbsdf",)),
+                  ("speos", (".anisotropicbsdf",)), ("speos-brdf", (".brdf",)))
 
 
 def _format_names() -> str:

@@ -70,9 +70,10 @@ def sweep(ctx, theta_i_max, n_theta_i, n_phi_i):
             # cell-centred nodes (an MDL .mbsdf table): the domain reaches normal incidence,
             # where the table holds its first incidence
             theta = np.concatenate([[0.0], theta])
-        pax = grid.axes[grid.dims.index("phi_i")]
         if not b.isotropic:
-            phi = np.asarray(pax.values, float)
+            # the grid's incident azimuth nodes (a grid whose axis is not φi itself says them)
+            own = getattr(grid, "incident_azimuths", None)
+            phi = np.asarray(own() if callable(own) else grid.axes[grid.dims.index("phi_i")].values, float)
     return theta, phi
 
 

@@ -37,7 +37,7 @@ from ._tables import axis_coordinate, horizon_error, pair_directions
 __all__ = ["Tabulation", "cell_centres"]
 
 
-INCIDENCE_AXES = ("theta_i", "phi_i")
+INCIDENCE_AXES = ("theta_i", "phi_i", "speos_rotation")
 
 
 def cell_centres(grid, n: int, seed: int = 0, at_nodes=()):

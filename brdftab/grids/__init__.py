@@ -14,6 +14,8 @@ keys declared as :class:`~brdftab.params.Param`:
     gonio axes ``theta_i, phi_i, theta_o, phi_o`` (or offsets from the mirror direction).
 ``specular-polar`` (:mod:`.specular_polar`)
     ``theta_i, phi_i, spec_azimuth, spec_radial``: polar angles about the mirror direction (Zemax .bsdf).
+``speos`` (:mod:`.speos`)
+    ``theta_i, speos_rotation, theta_o, speos_phi``: Ansys Speos tables (φ = 0 on the mirror side).
 
 Axes, the φd folds and angle lists live in :mod:`.axis`.
 """
@@ -28,8 +30,9 @@ from .merl import merl_grid
 from .rusinkiewicz import RusinkiewiczGrid
 from .spherical import SphericalGrid
 from .specular_polar import SpecularPolarGrid
+from .speos import SpeosGrid
 
-__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "merl_grid",
+__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "SpeosGrid", "merl_grid",
            "grid_from_config", "grid_from_dataset", "grid_wavelengths", "check_grid", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS",
            "COMMON_PARAMS", "register"]
 
