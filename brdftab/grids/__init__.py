@@ -14,6 +14,10 @@ keys declared as :class:`~brdftab.params.Param`:
     gonio axes ``theta_i, phi_i, theta_o, phi_o`` (or offsets from the mirror direction).
 ``specular-polar`` (:mod:`.specular_polar`)
     ``theta_i, phi_i, spec_azimuth, spec_radial``: polar angles about the mirror direction (Zemax .bsdf).
+``klems`` (:mod:`.klems`)
+    ``klems_i, klems_o``: Klems patch pairs (LBNL WINDOW / Radiance XML matrices, 145 × 145).
+``tensor-tree`` (:mod:`.tensor_tree`)
+    Radiance tensor-tree square coordinates (XML ``TensorTree3`` / ``TensorTree4``).
 
 Axes, the φd folds and angle lists live in :mod:`.axis`.
 """
@@ -28,8 +32,10 @@ from .merl import merl_grid
 from .rusinkiewicz import RusinkiewiczGrid
 from .spherical import SphericalGrid
 from .specular_polar import SpecularPolarGrid
+from .klems import KlemsGrid
+from .tensor_tree import TensorTreeGrid
 
-__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "merl_grid",
+__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "KlemsGrid", "TensorTreeGrid", "merl_grid",
            "grid_from_config", "grid_from_dataset", "grid_wavelengths", "check_grid", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS",
            "COMMON_PARAMS", "register"]
 
