@@ -72,7 +72,7 @@ QUANTITY = ("f_r [sr-1] (BSDF values without the cosine factor), read as Radianc
 #: Default tree levels (2^level cells per coordinate) for isotropic and anisotropic trees.
 DEFAULT_LEVEL = {3: 5, 4: 4}
 #: Default sub-samples per dimension of each outgoing patch (Klems) or cell (tree) the writer averages.
-DEFAULT_SAMPLES = {"klems": 8, "tree": 2}
+DEFAULT_SAMPLES = {"klems": 16, "tree": 4}
 _SPLIT = re.compile(r"[\s,]+")
 
 
@@ -457,59 +457,13 @@ def _colour_source(brdf, illuminant, observer, wavelengths_nm):
                       f"{', '.join(brdf.channels)}")
 
 
-def _eval(brdf, wi, wo):
-    return np.asarray(brdf.eval(wi, wo, assume_unit=True), float)
-
-
-def _klems_values(brdf, grid: KlemsGrid, n: int, nc: int):
-    """``[i, o, C]``: f averaged over outgoing patch ``o`` at incident patch ``i``'s centre."""
-    dirs, w = grid.patch_samples(n)
-    p, s = dirs.shape[:2]
-    flat_o = dirs.reshape(-1, 3)
-    out = np.empty((p, p, nc))
-    for i in range(p):
-        wi = grid.patch_direction(i)
-        wi[:2] *= -1.0
-        f = _eval(brdf, np.broadcast_to(wi, flat_o.shape), flat_o).reshape(p, s, nc)
-        out[i] = np.einsum("psc,ps->pc", f, w)
-    return out
-
-
-def _tree_values(brdf, grid: TensorTreeGrid, n: int, nc: int):
-    """Values over the grid's cells: f averaged over the outgoing cell at the incident cell's centre."""
-    from ..grids.tensor_tree import _z, square2disk
-
-    res = grid.resolution
-    sx, sy = grid.cell_samples(n)
-    c = np.arange(res)
-    ox = ((c[:, None, None] + sx[None, None, :]) / res)  # [res, 1, s]
-    oy = ((c[None, :, None] + sy[None, None, :]) / res)  # [1, res, s]
-    ox, oy = np.broadcast_arrays(ox, oy)
-    dx, dy = square2disk(ox, oy)  # [res, res, s]
-    s = sx.size
-    n_in = grid.shape[:-2]
-    out = np.empty(n_in + (res, res, nc))
-    wi_nodes, _ = grid.directions(0, int(np.prod(n_in)) * res * res)
-    wi_nodes = wi_nodes[:: res * res]
-    for flat, wi in enumerate(wi_nodes):
-        if grid.rank == 3:
-            ang = np.arctan2(-wi[1], -wi[0])
-            x, y = np.cos(ang) * dx - np.sin(ang) * dy, np.sin(ang) * dx + np.cos(ang) * dy
-        else:
-            x, y = dx, dy
-        wo = np.stack([x, y, _z(x, y)], axis=-1).reshape(-1, 3)
-        f = _eval(brdf, np.broadcast_to(wi, wo.shape), wo).reshape(res, res, s, nc)
-        out[np.unravel_index(flat, n_in)] = f.mean(axis=2)
-    return out
-
-
 def prepare_radiance(brdf, grid, basis=None, tree_rank=None, tree_level=None, side="front",
                      patch_samples=None, illuminant="D65", observer="cie1931-2", wavelengths_nm=None):
     """The grey or X, Y, Z table on a Klems or tensor-tree grid that :func:`write_radiance` writes.
 
     A table already on the target grid is copied; anything else is averaged over each outgoing
     patch (Klems) or cell (tree) at the centre of each incident one, ``patch_samples``² points
-    at equal projected solid angles (default 8 for Klems, 2 for trees)."""
+    at equal projected solid angles (default 16 for Klems, 4 for trees)."""
     from ..table import Table, make_table, warn_specular_dropped
 
     check_options(basis, tree_rank, tree_level, side, patch_samples, illuminant, observer, wavelengths_nm)
@@ -524,20 +478,24 @@ def prepare_radiance(brdf, grid, basis=None, tree_rank=None, tree_level=None, si
     source = _colour_source(brdf, illuminant, observer, wavelengths_nm)
     if isinstance(source, Table) and source.grid.equals(target):
         return source
-    nc = len(source.channels)
+    from ..grids.cells import cell_averages
+
     n = patch_samples or DEFAULT_SAMPLES["tree" if isinstance(target, TensorTreeGrid) else "klems"]
-    if isinstance(target, KlemsGrid):
-        values = _klems_values(source, target, n, nc)
-        how = f"average of f over each outgoing patch ({n} x {n} points) at the incident patch's centre"
-    else:
-        values = _tree_values(source, target, n, nc)
-        how = f"average of f over each outgoing cell ({n} x {n} points) at the incident cell's centre"
-    provenance = {"radiance_sampling": how, "origin": getattr(source, "origin", "analytic")}
+    values = cell_averages(source, target, n).reshape(target.shape + (-1,))
+    what = "patch" if isinstance(target, KlemsGrid) else "cell"
+    provenance = {"radiance_sampling": f"average of f over each outgoing {what} ({n} x {n} points of equal projected "
+                                       f"solid angle) at the incident {what}'s centre",
+                  "cell_samples": n}
     if isinstance(brdf, Table):
         provenance.update({k: v for k, v in brdf.ds.attrs.items() if k in ("spec_sha256", "spec_file", "comment")})
     out = make_table(values, target, source.layout, brdf=source, provenance=provenance)
-    out.origin = getattr(source, "origin", "analytic")
-    return out
+    # what the cells hold: only an isotropic tree is isotropic by construction, and averaging over
+    # outgoing cells at incident centres is not reciprocal (the table declares neither)
+    out.ds.attrs["isotropic"] = int(isinstance(target, TensorTreeGrid) and target.rank == 3)
+    out.ds.attrs.pop("reciprocal", None)
+    result = Table(out.ds)
+    result.origin = getattr(source, "origin", "analytic")
+    return result
 
 
 def _encoded(table):
@@ -688,8 +646,8 @@ register(FileFormat(
         Param("side", "choice", "Which block the BRDF is written as: front ('Reflection Front', WINDOW's convention, "
               "served by Radiance's library on its -z side) or back ('Reflection Back', served on +z).",
               default="front", choices=tuple(SIDES)),
-        Param("patch_samples", "int", "Points per dimension averaged over each outgoing patch or cell (default 8 "
-              "for Klems, 2 for trees).", default=None, minimum=1, maximum=64),
+        Param("patch_samples", "int", "Points per dimension averaged over each outgoing patch or cell (default 16 "
+              "for Klems, 4 for trees).", default=None, minimum=1, maximum=64),
     ) + COLOUR_PARAMS,
     precision=1e-6,  # float32 samples; X and Z of a tree pass through float32 u', v'
 ))

@@ -137,6 +137,10 @@ class KlemsGrid(Grid):
         wi[..., :2] *= -1.0
         return wi, self.patch_direction(o)
 
+    def pair_directions(self, coords):
+        """``(wi, wo)`` of patch coordinates (the nodes: patch centres)."""
+        return self._directions([np.rint(np.asarray(c, float)).astype(np.intp) for c in coords])
+
     def _coordinates(self, wi, wo, isotropic: bool = False):
         wi = np.array(wi, float)
         wi[..., :2] *= -1.0
@@ -153,24 +157,35 @@ class KlemsGrid(Grid):
         wo = self.patch_direction(np.arange(self.n_patches))
         return wo, self.lambdas / wo[:, 2]
 
-    def patch_samples(self, n: int):
-        """``(directions[P, n·n, 3], weights[P, n·n])``: ``n × n`` points in each patch, at the
-        centres of equal cells in (cos²θ, φ), each with an equal share of the patch's projected
-        solid angle (weights sum to 1 per patch): the patch average of a function."""
+    def _patch_points(self, n: int):
+        """``[P, n·n, 3]``: ``n × n`` points in each patch at the centres of equal cells in
+        (cos²θ, φ), so each carries an equal share of the patch's projected solid angle."""
+        cached = getattr(self, "_points", {})
+        if n in cached:
+            return cached[n]
         from ..geometry import sph_to_vec
 
         lo, hi, counts, first = klems_rings(self.basis)
         t = (np.arange(n) + 0.5) / n
         dirs = np.empty((self.n_patches, n * n, 3))
         for r in range(lo.size):
-            c2 = np.cos(np.radians(lo[r])) ** 2 + t * (np.cos(np.radians(hi[r])) ** 2 - np.cos(np.radians(lo[r])) ** 2)
-            theta = np.arccos(np.sqrt(c2))
+            c_lo, c_hi = np.cos(np.radians(lo[r])) ** 2, np.cos(np.radians(hi[r])) ** 2
+            theta = np.arccos(np.sqrt(c_lo + t * (c_hi - c_lo)))
+            width = 2.0 * np.pi / counts[r]
             for k in range(counts[r]):
-                width = 2.0 * np.pi / counts[r]
-                phi = width * (k - 0.5 + t)
-                T, P = np.meshgrid(theta, phi, indexing="ij")
+                T, P = np.meshgrid(theta, width * (k - 0.5 + t), indexing="ij")
                 dirs[first[r] + k] = sph_to_vec(T.ravel(), P.ravel())
-        return dirs, np.full((self.n_patches, n * n), 1.0 / (n * n))
+        self._points = {**cached, n: dirs}
+        return dirs
+
+    def outgoing_samples(self, flat, n: int):
+        """``(wi[m, 3], wo[m, n·n, 3])`` of flat node indices: the incident patch's centre and
+        ``n × n`` points of equal projected solid angle in the outgoing patch (their mean is the
+        patch average, :func:`brdftab.grids.cells.cell_averages`)."""
+        i, o = np.unravel_index(np.asarray(flat, np.intp), self.shape)
+        wi = self.patch_direction(i)
+        wi[..., :2] *= -1.0
+        return wi, self._patch_points(n)[o]
 
     @classmethod
     def from_config(cls, values: dict) -> "KlemsGrid":

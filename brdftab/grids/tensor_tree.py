@@ -133,6 +133,13 @@ class TensorTreeGrid(Grid):
             ox, oy = -ox, -oy  # turned back by atan2(-wi.y, -wi.x) = pi
         return wi, np.stack([ox, oy, _z(ox, oy)], axis=-1)
 
+    def pair_directions(self, coords):
+        """``(wi, wo)`` of square coordinates (one array per axis)."""
+        res = self.resolution
+        idx = [np.clip(np.floor(np.asarray(c, float) * res), 0, len(ax) - 1).astype(np.intp)
+               for c, ax in zip(coords, self.axes)]
+        return self._directions(idx)
+
     def square_coordinates(self, wi, wo):
         """Radiance's grid position of direction pairs (``SDqueryTre``): one array per axis."""
         wi, wo = np.asarray(wi, float), np.asarray(wo, float)
@@ -176,12 +183,22 @@ class TensorTreeGrid(Grid):
         wo = np.stack([x, y, _z(x, y)], axis=-1)
         return wo, np.full(x.size, np.pi / res ** 2) / np.maximum(wo[:, 2], 1e-300)
 
-    def cell_samples(self, n: int):
-        """``(sx[n·n], sy[n·n])``: offsets in [0, 1) of ``n × n`` sub-cell centres (equal
-        projected solid angles: the concentric map keeps area) for cell averages."""
+    def outgoing_samples(self, flat, n: int):
+        """``(wi[m, 3], wo[m, n·n, 3])`` of flat node indices: the incident cell's centre and
+        ``n × n`` sub-cell centres of the outgoing cell (equal projected solid angles: the
+        concentric map keeps area), turned as the isotropic tree turns them."""
+        idx = np.unravel_index(np.asarray(flat, np.intp), self.shape)
+        centre = [ax.values[i] for ax, i in zip(self.axes, idx)]
+        wi, _ = self._directions(idx)
+        res = self.resolution
         t = (np.arange(n) + 0.5) / n
-        sx, sy = np.meshgrid(t, t, indexing="ij")
-        return sx.ravel(), sy.ravel()
+        sx, sy = (a.ravel() for a in np.meshgrid(t, t, indexing="ij"))
+        ox = (np.floor(centre[-2] * res)[:, None] + sx[None, :]) / res
+        oy = (np.floor(centre[-1] * res)[:, None] + sy[None, :]) / res
+        x, y = square2disk(ox, oy)
+        if self.rank == 3:
+            x, y = -x, -y  # the incident node lies at azimuth 0: turned back by pi
+        return wi, np.stack([x, y, _z(x, y)], axis=-1)
 
     @classmethod
     def from_config(cls, values: dict) -> "TensorTreeGrid":
