@@ -321,7 +321,8 @@ def test_real_klems_file_reads_at_patch_pairs_and_converts_to_netcdf(tmp_path):
     """Radiance's sawtooth.xml (genBSDF, Klems full, Reflection Back): 30 random entries of its matrix
     are what brdftab evaluates at the directions of their patches built here (outgoing patch centre,
     incident (−x, −y, z) of the incident patch's centre); Radiance's library agrees at 1000 random pairs;
-    it converts to netCDF and to zarr value for value, and the copies evaluate as the XML reader does."""
+    brdftab's directional albedo is Σ_o f Λ_o per incidence patch and its largest is checkBSDF's; it
+    converts to netCDF and to zarr value for value, and the copies evaluate as the XML reader does."""
     path = klems_file(tmp_path)
     m = klems_matrix(path.read_text())
     table = brdftab.open(path)
@@ -350,6 +351,16 @@ def test_real_klems_file_reads_at_patch_pairs_and_converts_to_netcdf(tmp_path):
         assert copy.grid.equals(table.grid)
         np.testing.assert_array_equal(np.asarray(copy.values), np.asarray(table.values))
         np.testing.assert_array_equal(copy.eval(a, b), table.eval(a, b))
+    # brdftab's directional albedo per incidence patch (the table's exact patch rule) against checkBSDF's
+    # largest total reflectance of the 'Interior' side (Radiance's +z: the file's Reflection Back)
+    theta = np.array([klems_centre(p)[0] for p in range(145)])
+    phi_in = np.array([klems_centre(p)[1] for p in range(145)]) + np.pi
+    albedo = directional_albedo(table, theta, phi_in)[:, 0]
+    lam = np.array([klems_lambda(p) for p in range(145)])
+    np.testing.assert_allclose(albedo, (m.astype(np.float32) * lam[:, None]).sum(axis=0), rtol=1e-6)
+    out = subprocess.run([str(BIN / "checkBSDF"), str(path)], capture_output=True, text=True, timeout=60).stdout
+    row = next(line for line in out.splitlines() if line.startswith("Interior Refl"))
+    assert abs(float(re.search(r"([\d.]+)%", row).group(1)) / 100 - albedo.max()) <= 0.0005 + 1e-6
     back = tmp_path / "again.xml"
     assert cli("convert", tmp_path / "saw.nc", back, "-o", "side=back").exit_code == 0
     np.testing.assert_array_equal(klems_matrix(back.read_text()).astype(np.float32), m.astype(np.float32))
@@ -359,7 +370,7 @@ def test_real_tensor_tree_reads_as_its_tree_and_converts_to_netcdf(tmp_path):
     """Radiance's testBSDF.xml (TensorTree3 of varying depth, Reflection Back): at 400 random pairs
     brdftab returns the leaf a lookup written here finds at Radiance's grid position (more than 20
     distinct leaves), Radiance's library agrees within its perturbation (1e-4 per coordinate), and
-    the netCDF copy evaluates identically."""
+    the netCDF and zarr copies evaluate identically."""
     table = brdftab.open(TREE_FILE)
     assert table.grid.rank == 3 and table.grid.level == 3 and table.isotropic
     tree = tree_lists(TREE_FILE.read_text())
@@ -372,12 +383,12 @@ def test_real_tensor_tree_reads_as_its_tree_and_converts_to_netcdf(tmp_path):
     local.write_bytes(TREE_FILE.read_bytes())
     ref, _ = radiance(local, wi, wo)
     np.testing.assert_allclose(ref, got, rtol=1.5e-4 + 4 * F32, atol=1e-6)
-    out = tmp_path / "t.nc"
-    assert cli("convert", TREE_FILE, out).exit_code == 0
-    copy = brdftab.open(out)
-    np.testing.assert_array_equal(copy.eval(wi, wo), table.eval(wi, wo))
-    r = cli("validate", out)
-    assert "Traceback" not in r.output
+    for ext in ("nc", "zarr"):
+        out = tmp_path / f"t.{ext}"
+        assert cli("convert", TREE_FILE, out).exit_code == 0
+        copy = brdftab.open(out)
+        assert copy.grid.equals(table.grid)
+        np.testing.assert_array_equal(copy.eval(wi, wo), table.eval(wi, wo))
 
 
 # -- sides, transmission, refusals -----------------------------------------------------------------------
