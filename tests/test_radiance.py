@@ -257,6 +257,7 @@ def test_tensor_tree_written_is_read_by_radiance_library(tmp_path, rank, level):
     text = path.read_text()
     assert f"<IncidentDataStructure>TensorTree{rank}</IncidentDataStructure>" in text
     back = brdftab.open(path)
+    np.testing.assert_allclose(back.values, table.values, rtol=1e-6, atol=0)  # X, Z through float32 u', v'
     wi, wo = random_pairs(1500, 2)
     got = back.eval(wi, wo)[:, 1 if rank == 3 else 0]
     tree = tree_lists(text)  # the Visible (Y) tree
@@ -437,6 +438,17 @@ def test_reader_takes_front_by_default_back_on_request_and_skips_transmission(tm
     only_t.write_text(text.replace("Reflection Back", "Transmission Back"))
     r = cli("info", only_t)
     one_error(r.stderr, r.exit_code, "no Visible 'Reflection Back' block", "Visible Transmission Back")
+
+
+def test_rows_files_are_the_transpose(tmp_path):
+    """IncidentDataStructure 'Rows': the stream is [incident][outgoing]."""
+    text = lzma.decompress(KLEMS_FILE.read_bytes()).decode()
+    m = klems_matrix(text)
+    body = "\n".join(" ".join(f"{x:.9g}" for x in row) for row in m.T)
+    path = tmp_path / "rows.xml"
+    path.write_text(re.sub(r"<ScatteringData>.*?</ScatteringData>", f"<ScatteringData>\n{body}\n</ScatteringData>",
+                           text, flags=re.S).replace(">Columns<", ">Rows<"))
+    np.testing.assert_array_equal(brdftab.open(path).values[..., 0], m.T.astype(np.float32))
 
 
 def test_reader_notes_what_it_skips_and_clamps(tmp_path):
