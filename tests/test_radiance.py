@@ -422,6 +422,8 @@ def _two_sided(path, text, front_scale, with_transmission):
 
 
 def test_reader_takes_front_by_default_back_on_request_and_skips_transmission(tmp_path):
+    """A file with both reflection blocks and a transmission block: Reflection Front is the BRDF by default,
+    Reflection Back on request; the other reflection block is kept and written back as its side."""
     text = lzma.decompress(KLEMS_FILE.read_bytes()).decode()
     path = tmp_path / "both.xml"
     m = _two_sided(path, text, 2.0, with_transmission=True)
@@ -434,6 +436,18 @@ def test_reader_takes_front_by_default_back_on_request_and_skips_transmission(tm
     with pytest.warns(BrdftabWarning):
         back = read_radiance(path, side="back")
     np.testing.assert_array_equal(back.values[..., 0], m.T.astype(np.float32))
+    # the other reflection block is kept beside the BRDF: .xml -> netCDF -> .xml writes both sides back
+    np.testing.assert_array_equal(front.ds["radiance_other_side"].values[..., 0], m.T.astype(np.float32))
+    for table, name in ((front, "f"), (back, "b")):
+        brdftab.save(table, tmp_path / f"{name}.nc")
+        r = cli("convert", tmp_path / f"{name}.nc", tmp_path / f"{name}.xml")
+        assert r.exit_code == 0, r.output
+        again = (tmp_path / f"{name}.xml").read_text()
+        blocks = re.findall(r"<WavelengthDataDirection>(.*?)</WavelengthDataDirection>.*?<ScatteringData>(.*?)"
+                            r"</ScatteringData>", again, re.S)
+        got = {d: np.float32(v.split()).reshape(145, 145) for d, v in blocks}
+        np.testing.assert_array_equal(got["Reflection Front"], (2.0 * m).astype(np.float32))
+        np.testing.assert_array_equal(got["Reflection Back"], m.astype(np.float32))
     only_t = tmp_path / "t.xml"
     only_t.write_text(text.replace("Reflection Back", "Transmission Back"))
     r = cli("info", only_t)

@@ -28,8 +28,10 @@ vectors of a back-side block have z < 0; x and y are the same). Radiance's libra
 file's "Reflection Front" on its −z side and "Reflection Back" on +z (front and back are reversed
 from WINDOW's orientation, ``bsdf_m.c``). The reader reads "Reflection Front" (WINDOW's
 convention for the side facing the incident light) by default, or "Reflection Back" when the file
-has no front (``side`` chooses); transmission blocks are skipped with a warning. The writer labels
-brdftab's BRDF "Reflection Front" (``side = "back"`` writes "Reflection Back").
+has no front (``side`` chooses); transmission blocks are skipped with a warning, and the other
+reflection block of a file that has both is kept in the variable ``radiance_other_side``. The writer
+labels brdftab's BRDF "Reflection Front" (``side = "back"`` writes "Reflection Back"; a table read
+from a file keeps its side) and writes a kept other block as the other side.
 
 Colour: Klems files hold ``Visible`` (CIE Y) and optionally ``CIE-X`` and ``CIE-Z`` blocks; trees
 hold ``Visible`` and optionally ``CIE-u`` and ``CIE-v`` (u′, v′ chromaticity) trees. A file with
@@ -64,6 +66,8 @@ __all__ = ["read_radiance", "write_radiance", "prepare_radiance", "parse_tree", 
 
 NAMESPACE = "http://windows.lbl.gov"
 SIDES = {"front": "Reflection Front", "back": "Reflection Back"}
+#: Table variable holding a file's other reflection block (same dims as ``brdf``), written back as that side.
+OTHER_SIDE = "radiance_other_side"
 BASES = ("klems-full", "klems-half", "klems-quarter", "tensor-tree")
 GREY = ("mono",)
 XYZ = ("X", "Y", "Z")
@@ -281,67 +285,75 @@ def read_radiance(path, side: str | None = None):
                                         + "'"))
     colour = ("cie-u", "cie-v") if tree else ("cie-x", "cie-z")
     has_colour = all((c, label.lower()) in found for c in colour)
+    names = ("visible",) + (colour if has_colour else ())
+    opposite = SIDES["back" if side == "front" else "front"]
+    both = all((name, opposite.lower()) in found for name in names)
+    labels = (label, opposite) if both else (label,)
+    kept = {(name, lab.lower()) for name in names for lab in labels}
     notes = []
-    other = sorted({f"{wl} {d}" for wl, d in listed if d.lower() != label.lower() or
-                    wl.lower() not in ("visible",) + (colour if has_colour else ())})
+    other = sorted({f"{wl} {d}" for wl, d in listed if (wl.lower(), d.lower()) not in kept})
     if other:
         notes.append("skipped: " + ", ".join(other))
     trans = [f"{wl} {d}" for wl, d in listed if d.lower().startswith("transmission")]
     if trans:
         warnings.warn(f"{path}: transmission blocks skipped ({', '.join(trans)}): brdftab holds reflection (a BRDF) "
                       "only", BrdftabWarning, stacklevel=3)
-    names = ("visible",) + (colour if has_colour else ())
-    clamped = 0
     if tree:
         rank = int(structure[-1])
-        chans, level = [], 0
-        for name in names:
-            blk = found[(name, label.lower())]
-            basis = _text(blk, "AngleBasis")
-            if basis.lower() != "lbnl/shirley-chiu":
-                raise FormatError(f"{path}: tensor tree with AngleBasis {basis!r}; Radiance's trees use "
-                                  "LBNL/Shirley-Chiu")
-            data = _child(blk, "ScatteringData")
-            vals, lv = parse_tree(path, (data.text or "") if data is not None else "", rank)
-            chans.append((vals, lv))
-            level = max(level, lv)
-        arrays = []
-        for vals, lv in chans:
-            for ax in range(rank):
-                vals = np.repeat(vals, 1 << (level - lv), axis=ax)
-            arrays.append(vals)
+        per_side, level = [], 0
+        for lab in labels:
+            chans = []
+            for name in names:
+                blk = found[(name, lab.lower())]
+                basis = _text(blk, "AngleBasis")
+                if basis.lower() != "lbnl/shirley-chiu":
+                    raise FormatError(f"{path}: tensor tree with AngleBasis {basis!r}; Radiance's trees use "
+                                      "LBNL/Shirley-Chiu")
+                data = _child(blk, "ScatteringData")
+                vals, lv = parse_tree(path, (data.text or "") if data is not None else "", rank)
+                chans.append((vals, lv))
+                level = max(level, lv)
+            per_side.append(chans)
+        stacks = []
+        for chans in per_side:
+            arrays = []
+            for vals, lv in chans:
+                for ax in range(rank):
+                    vals = np.repeat(vals, 1 << (level - lv), axis=ax)
+                arrays.append(vals[: 1 << (level - 1)] if rank == 3 else vals)
+            stacks.append(np.stack(arrays, axis=-1))
         grid = TensorTreeGrid(rank, level)
-        if rank == 3:
-            arrays = [a[: 1 << (level - 1)] for a in arrays]
-        stack = np.stack(arrays, axis=-1)
     else:
         basis = None
-        mats = []
-        for name in names:
-            blk = found[(name, label.lower())]
-            b = _klems_basis(path, layer, blk)
-            if basis is not None and b != basis:
-                raise FormatError(f"{path}: blocks on different Klems bases")
-            basis = b
-            n = int(sum(r[1] for r in KLEMS_BASES[basis]))
-            data = _child(blk, "ScatteringData")
-            vals = _numbers(path, (data.text or "") if data is not None else "", f"{name} {label} ScatteringData")
-            if vals.size != n * n:
-                raise FormatError(f"{path}: {name} {label} ScatteringData holds {vals.size} values; a "
-                                  f"{BASIS_NAMES[basis]} matrix holds {n} x {n} = {n * n}")
-            m = vals.reshape(n, n)  # Columns: [outgoing, incident]; Rows: [incident, outgoing]
-            mats.append(m.T if structure == "Columns" else m)
+        stacks = []
+        for lab in labels:
+            mats = []
+            for name in names:
+                blk = found[(name, lab.lower())]
+                b = _klems_basis(path, layer, blk)
+                if basis is not None and b != basis:
+                    raise FormatError(f"{path}: blocks on different Klems bases")
+                basis = b
+                n = int(sum(r[1] for r in KLEMS_BASES[basis]))
+                data = _child(blk, "ScatteringData")
+                vals = _numbers(path, (data.text or "") if data is not None else "", f"{name} {lab} ScatteringData")
+                if vals.size != n * n:
+                    raise FormatError(f"{path}: {name} {lab} ScatteringData holds {vals.size} values; a "
+                                      f"{BASIS_NAMES[basis]} matrix holds {n} x {n} = {n * n}")
+                m = vals.reshape(n, n)  # Columns: [outgoing, incident]; Rows: [incident, outgoing]
+                mats.append(m.T if structure == "Columns" else m)
+            stacks.append(np.stack(mats, axis=-1))
         grid = KlemsGrid(basis)
-        stack = np.stack(mats, axis=-1)
-    bad = ~np.isfinite(stack)
-    if bad.any():
-        raise FormatError(f"{path}: {int(bad.sum())} values that are not finite numbers")
-    clamped = int((stack < 0).sum())
-    stack = np.maximum(stack, 0.0).astype(np.float32).astype(np.float64)
-    if has_colour:
-        stack = _to_xyz(stack, tree)
-    if clamped:
-        notes.append(f"{clamped} negative values set to 0 (as Radiance does)")
+    for k, stack in enumerate(stacks):
+        bad = ~np.isfinite(stack)
+        if bad.any():
+            raise FormatError(f"{path}: {labels[k]}: {int(bad.sum())} values that are not finite numbers")
+        clamped = int((stack < 0).sum())
+        if clamped:
+            notes.append(f"{labels[k]}: {clamped} negative values set to 0 (as Radiance does)")
+        stack = np.maximum(stack, 0.0).astype(np.float32).astype(np.float64)
+        stacks[k] = _to_xyz(stack, tree) if has_colour else stack
+    stack = stacks[0]
     material = _child(layer, "Material")
     provenance = {
         "title": f"Radiance XML BSDF {path.name}",
@@ -371,6 +383,11 @@ def read_radiance(path, side: str | None = None):
     table = make_table(stack, grid, Layout(XYZ if has_colour else GREY), provenance=provenance)
     for key in ("created", "brdftab_version", "history", "source", "reciprocal", "spec_sha256"):
         table.ds.attrs.pop(key, None)
+    if both:  # the file's other reflection block, kept beside the BRDF so that a copy writes it back
+        var = table.ds["brdf"]
+        table.ds[OTHER_SIDE] = var.copy(data=stacks[1])
+        table.ds[OTHER_SIDE].attrs.update({"long_name": f"the file's {opposite} block, f_r as read",
+                                           "radiance_side": opposite})
     return Table(table.ds)
 
 
@@ -415,12 +432,12 @@ def _basis_options(basis, tree_rank, tree_level, anisotropic):
     return TensorTreeGrid(rank, level)
 
 
-def check_options(basis=None, tree_rank=None, tree_level=None, side="front", patch_samples=None,
+def check_options(basis=None, tree_rank=None, tree_level=None, side=None, patch_samples=None,
                   illuminant="D65", observer="cie1931-2", wavelengths_nm=None):
     if basis is not None or tree_rank is not None or tree_level is not None:
         _basis_options(basis or ("tensor-tree" if tree_rank or tree_level else "klems-full"), tree_rank, tree_level,
                        False)
-    if side not in SIDES:
+    if side is not None and side not in SIDES:
         raise ParameterError("side", f"expected 'front' or 'back', got {side!r}")
     if (illuminant, observer) != ("D65", "cie1931-2"):
         from ..colorimetry import from_options
@@ -457,7 +474,7 @@ def _colour_source(brdf, illuminant, observer, wavelengths_nm):
                       f"{', '.join(brdf.channels)}")
 
 
-def prepare_radiance(brdf, grid, basis=None, tree_rank=None, tree_level=None, side="front",
+def prepare_radiance(brdf, grid, basis=None, tree_rank=None, tree_level=None, side=None,
                      patch_samples=None, illuminant="D65", observer="cie1931-2", wavelengths_nm=None):
     """The grey or X, Y, Z table on a Klems or tensor-tree grid that :func:`write_radiance` writes.
 
@@ -498,9 +515,11 @@ def prepare_radiance(brdf, grid, basis=None, tree_rank=None, tree_level=None, si
     return result
 
 
-def _encoded(table):
-    """``(block names, [C] arrays in file order)``: the values the file holds, float32, negatives 0."""
-    v = np.nan_to_num(np.asarray(table.values, float), nan=0.0, posinf=0.0, neginf=0.0)
+def _encoded(table, values=None):
+    """``(block names, [..., C] array in file order)``: the values (default the table's) as the file
+    holds them, float32, negatives 0."""
+    v = np.asarray(table.values if values is None else values, float)
+    v = np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0)
     tree = isinstance(table.grid, TensorTreeGrid)
     if table.channels == GREY:
         names, parts = ("Visible",), v
@@ -558,7 +577,7 @@ def _xml_escape(text: str) -> str:
     return str(text).replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
 
 
-def write_radiance(table, path, basis=None, tree_rank=None, tree_level=None, side="front",
+def write_radiance(table, path, basis=None, tree_rank=None, tree_level=None, side=None,
                    patch_samples=None, illuminant="D65", observer="cie1931-2", wavelengths_nm=None):
     """Write ``table`` (on a Klems or tensor-tree grid, grey or X, Y, Z; see :func:`prepare_radiance`)."""
     grid = table.grid
@@ -568,7 +587,13 @@ def write_radiance(table, path, basis=None, tree_rank=None, tree_level=None, sid
         raise FormatError(f"a Radiance XML file stores grey or X, Y, Z channels, not {table.channels}")
     names, parts = _encoded(table)
     tree = isinstance(grid, TensorTreeGrid)
+    if side is None:  # a table read from a file keeps its side; anything else is WINDOW's front
+        side = "back" if table.ds.attrs.get("radiance_side") == SIDES["back"] else "front"
     label = SIDES[side]
+    blocks = [(label, parts)]
+    if OTHER_SIDE in table.ds.data_vars and table.ds[OTHER_SIDE].shape == table.ds["brdf"].shape:
+        other = table.ds[OTHER_SIDE].transpose(*table.ds["brdf"].dims).values
+        blocks.append((SIDES["back" if side == "front" else "front"], _encoded(table, other)[1]))
     out = ['<?xml version="1.0" encoding="UTF-8"?>',
            f"<!-- Written by brdftab {__version__} from {_xml_escape(table.name).replace('--', '- -')}: "
            f"BRDF f_r [1/sr] as {label} (formats/radiance.md) -->",
@@ -600,22 +625,23 @@ def write_radiance(table, path, basis=None, tree_rank=None, tree_level=None, sid
             fh.write("\t<WavelengthData>\n\t\t<LayerNumber>System</LayerNumber>\n"
                      f"\t\t<Wavelength unit=\"Integral\">{name}</Wavelength>\n"
                      "\t\t<SourceSpectrum>CIE Illuminant D65 1nm.ssp</SourceSpectrum>\n"
-                     f"\t\t<DetectorSpectrum>{detectors[name]}</DetectorSpectrum>\n"
-                     "\t\t<WavelengthDataBlock>\n"
-                     f"\t\t\t<WavelengthDataDirection>{label}</WavelengthDataDirection>\n")
-            if tree:
-                fh.write("\t\t\t<AngleBasis>LBNL/Shirley-Chiu</AngleBasis>\n")
-            else:
-                fh.write(f"\t\t\t<ColumnAngleBasis>{grid.basis_name}</ColumnAngleBasis>\n"
-                         f"\t\t\t<RowAngleBasis>{grid.basis_name}</RowAngleBasis>\n")
-            fh.write("\t\t\t<ScatteringDataType>BRDF</ScatteringDataType>\n\t\t\t<ScatteringData>\n")
-            v = parts[..., c]
-            if tree:
-                fh.write(tree_text(v, grid.rank))
-            else:
-                m = v.T  # [outgoing, incident]: rows = outgoing, columns = incident
-                fh.write("\n".join(_numbers_text(row) for row in m))
-            fh.write("\n\t\t\t</ScatteringData>\n\t\t</WavelengthDataBlock>\n\t</WavelengthData>\n")
+                     f"\t\t<DetectorSpectrum>{detectors[name]}</DetectorSpectrum>\n")
+            for lab, values in blocks:
+                fh.write("\t\t<WavelengthDataBlock>\n"
+                         f"\t\t\t<WavelengthDataDirection>{lab}</WavelengthDataDirection>\n")
+                if tree:
+                    fh.write("\t\t\t<AngleBasis>LBNL/Shirley-Chiu</AngleBasis>\n")
+                else:
+                    fh.write(f"\t\t\t<ColumnAngleBasis>{grid.basis_name}</ColumnAngleBasis>\n"
+                             f"\t\t\t<RowAngleBasis>{grid.basis_name}</RowAngleBasis>\n")
+                fh.write("\t\t\t<ScatteringDataType>BRDF</ScatteringDataType>\n\t\t\t<ScatteringData>\n")
+                v = values[..., c]
+                if tree:
+                    fh.write(tree_text(v, grid.rank))
+                else:
+                    fh.write("\n".join(_numbers_text(row) for row in v.T))  # rows = outgoing, columns = incident
+                fh.write("\n\t\t\t</ScatteringData>\n\t\t</WavelengthDataBlock>\n")
+            fh.write("\t</WavelengthData>\n")
         fh.write("</Layer>\n</Optical>\n</WindowElement>\n")
 
 
@@ -644,8 +670,9 @@ register(FileFormat(
         Param("tree_level", "int", "Tensor tree: 2^level cells per coordinate (default 5 for rank 3, 4 for rank 4).",
               default=None, minimum=1, maximum=MAX_LEVEL),
         Param("side", "choice", "Which block the BRDF is written as: front ('Reflection Front', WINDOW's convention, "
-              "served by Radiance's library on its -z side) or back ('Reflection Back', served on +z).",
-              default="front", choices=tuple(SIDES)),
+              "served by Radiance's library on its -z side; the default) or back ('Reflection Back', served on +z). "
+              "A table read from an XML file keeps its side, and a file's other reflection block, kept beside it, "
+              "is written as the other side.", default=None, choices=tuple(SIDES)),
         Param("patch_samples", "int", "Points per dimension averaged over each outgoing patch or cell (default 16 "
               "for Klems, 4 for trees).", default=None, minimum=1, maximum=64),
     ) + COLOUR_PARAMS,
