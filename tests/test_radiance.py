@@ -436,11 +436,11 @@ def test_reader_takes_front_by_default_back_on_request_and_skips_transmission(tm
     with pytest.warns(BrdftabWarning):
         back = read_radiance(path, side="back")
     np.testing.assert_array_equal(back.values[..., 0], m.T.astype(np.float32))
-    # the other reflection block is kept beside the BRDF: .xml -> netCDF -> .xml writes both sides back
+    # the other reflection block is kept beside the BRDF: .xml -> netCDF or zarr -> .xml writes both sides back
     np.testing.assert_array_equal(front.ds["radiance_other_side"].values[..., 0], m.T.astype(np.float32))
-    for table, name in ((front, "f"), (back, "b")):
-        brdftab.save(table, tmp_path / f"{name}.nc")
-        r = cli("convert", tmp_path / f"{name}.nc", tmp_path / f"{name}.xml")
+    for table, name, ext in ((front, "f", "nc"), (back, "b", "zarr")):
+        brdftab.save(table, tmp_path / f"{name}.{ext}")
+        r = cli("convert", tmp_path / f"{name}.{ext}", tmp_path / f"{name}.xml")
         assert r.exit_code == 0, r.output
         again = (tmp_path / f"{name}.xml").read_text()
         blocks = re.findall(r"<WavelengthDataDirection>(.*?)</WavelengthDataDirection>.*?<ScatteringData>(.*?)"
