@@ -24,7 +24,6 @@ import lzma
 import math
 import re
 import subprocess
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -355,6 +354,7 @@ def test_real_klems_file_reads_at_patch_pairs_and_converts_to_netcdf(tmp_path):
     got = table.eval(a, b)[:, 0]
     ii = np.array([klems_patch((-x[0], -x[1], x[2])) for x in a])
     oo = np.array([klems_patch(x) for x in b])
+    np.testing.assert_array_equal(got, np.asarray(table.values)[ii, oo, 0])
     ref, _ = radiance(path, a, b)  # Reflection Back: served on +z
     np.testing.assert_allclose(ref, klems_perturbed(np.asarray(table.values[..., 0]), ii, oo), rtol=4 * F32,
                                atol=1e-9)
