@@ -289,7 +289,7 @@ def tabulate(ctx, specs, out_dir, overwrite, allow_invalid, levels, settings, pr
 USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("zarr", (".zarr",)), ("merl", (".binary",)),
                   ("rgl", (".bsdf",)), ("exr", (".exr",)), ("zemax", (".bsdf",)),
                   ("lighttools", (".bsdf",)), ("mbsdf", (".mbsdf",)),
-                  ("speos", (".anisotropicbsdf",)), ("speos-brdf", (".brdf",)))
+                  ("speos", (".anisotropicbsdf",)), ("speos-brdf", (".brdf",)), ("radiance", (".xml",)))
 
 
 def _format_names() -> str:

@@ -240,6 +240,11 @@ def grid_table(grid) -> dict:
                 base[p.spec_key] = value
             elif p.kind == "bool" and isinstance(value, (bool, np.bool_)) and bool(value) != p.default:
                 base[p.spec_key] = bool(value)
+            elif p.kind == "int" and isinstance(value, (int, np.integer)) and not isinstance(value, bool) \
+                    and value != p.default:
+                base[p.spec_key] = int(value)
+        if not any(a.name in declared or f"n_{a.name}" in declared for a in grid.axes):
+            candidates.append(dict(base))  # a grid its choices alone determine (Klems basis, tree rank and level)
         counts = {f"n_{a.name}": len(a) for a in grid.axes if f"n_{a.name}" in declared}
         if len(counts) == len(grid.axes):
             candidates.append(dict(base, **counts))

@@ -343,7 +343,8 @@ class Table(BRDF):
         table holds its end values, and a bilateral grid (φo − φi folded into [0, π]) counts its
         half circle twice."""
         if getattr(self.grid, "parameterization", "") != "spherical":
-            return None
+            # a grid whose table is constant over cells states its exact rule (Klems, tensor tree)
+            return getattr(self.grid, "outgoing_rule", None)
         return self._gonio_rule
 
     def _gonio_rule(self, wi, wavelengths=None):

@@ -138,7 +138,9 @@ def test_grid_table_reproduces_each_grid_kind():
                 {"type": "rusinkiewicz", "theta_h_deg": [0.5, 3, 10, 40, 80], "theta_d_deg": [1, 30, 60],
                  "n_phi_d": 4},
                 {"type": "spherical", "theta_i_deg": [0, 30, 60], "phi_i_deg": [0], "theta_o_deg": [0, 45, 85],
-                 "phi_o_deg": [0, 90, 180]}):
+                 "phi_o_deg": [0, 90, 180]},
+                {"type": "klems", "basis": "half"}, {"type": "tensor-tree", "rank": 4, "level": 3},
+                {"type": "tensor-tree"}):
         grid = grid_from_config(cfg)
         again = grid_from_config(grid_table(grid))
         assert again.equals(grid), cfg  # node for node, bit for bit (angles written in degrees)

@@ -237,3 +237,62 @@ def test_bilateral_spherical_grid():
         assert e.value.key.startswith(key)
     with pytest.raises(ParameterError, match="anisotropic; a bilateral fold assumes isotropy"):
         tabulate(models.create("microfacet", alpha_x=0.1, alpha_y=0.3), g, progress=False)
+
+
+# -- Klems and tensor-tree grids (Radiance XML) ----------------------------------------------------------
+
+def test_klems_grid_patches_cover_the_hemisphere_and_nodes_locate_to_themselves():
+    """Full, half and quarter Klems bases: the patches' projected solid angles sum to π; every node's
+    directions (patch centres, the incident one turned by 180°) locate to that node; the patch of
+    random directions is the one whose polar bounds and azimuth span hold them (written here)."""
+    from brdftab.grids import KlemsGrid
+    from brdftab.grids.klems import KLEMS_BASES
+
+    for basis, n in (("full", 145), ("half", 77), ("quarter", 41)):
+        g = KlemsGrid(basis)
+        assert g.shape == (n, n) and g.lambdas.sum() == pytest.approx(np.pi, rel=1e-14)
+        wi, wo = g.directions()
+        idx, outside = g.locate(wi, wo)
+        assert not outside.any()
+        flat = np.ravel_multi_index([i.astype(int) for i in idx], g.shape)
+        np.testing.assert_array_equal(flat, np.arange(g.size))
+        rings = KLEMS_BASES[basis]
+        rng = np.random.default_rng(0)
+        v = sph_to_vec(np.arccos(rng.uniform(0.001, 1, 500)), rng.uniform(-np.pi, np.pi, 500))
+        _, o = g.locate(np.tile([0.0, 0.0, 1.0], (500, 1)), v)[0]
+        theta, phi = np.degrees(np.arccos(v[:, 2])), np.degrees(np.arctan2(v[:, 1], v[:, 0])) % 360
+        for t, p, k in zip(theta, phi, o.astype(int)):
+            first = 0
+            for r, (lo, m) in enumerate(rings):
+                hi = rings[r + 1][0] if r + 1 < len(rings) else 90.0
+                if lo <= t < hi:
+                    centre = 360.0 * (k - first) / m
+                    assert 0 <= k - first < m and abs((p - centre + 180) % 360 - 180) <= 180.0 / m + 1e-9
+                    break
+                first += m
+
+
+def test_tensor_tree_grid_maps_cells_as_radiance_does():
+    """Shirley-Chiu's concentric maps invert each other; every node locates to itself (rank 3 and 4); a
+    rank-3 table is the same for every incident azimuth (the outgoing direction turns with it); the
+    outgoing rule integrates a constant to π."""
+    from brdftab.grids import TensorTreeGrid
+    from brdftab.grids.tensor_tree import disk2square, square2disk
+
+    rng = np.random.default_rng(1)
+    s = rng.random((2, 1000))
+    np.testing.assert_allclose(disk2square(*square2disk(*s)), s, atol=1e-12)
+    for rank, level in ((3, 3), (4, 2)):
+        g = TensorTreeGrid(rank, level)
+        wi, wo = g.directions()
+        idx, outside = g.locate(wi, wo)
+        assert not outside.any()
+        np.testing.assert_array_equal(np.ravel_multi_index([i.astype(int) for i in idx], g.shape), np.arange(g.size))
+        w_o, w = g.outgoing_rule(wi[0])
+        assert (w * w_o[:, 2]).sum() == pytest.approx(np.pi, rel=1e-12)
+    g = TensorTreeGrid(3, 4)
+    wi, wo = sph_to_vec(np.radians(40.0), 0.0), sph_to_vec(np.radians(30.0), np.radians(150.0))
+    turn = np.radians(77.0)
+    rot = np.array([[np.cos(turn), -np.sin(turn), 0], [np.sin(turn), np.cos(turn), 0], [0, 0, 1]])
+    a, b = g.locate(wi[None], wo[None])[0], g.locate((rot @ wi)[None], (rot @ wo)[None])[0]
+    assert [float(x[0]) for x in a] == [float(x[0]) for x in b]

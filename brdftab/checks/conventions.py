@@ -68,6 +68,12 @@ def _node_errors(ctx, model, seed):
             return None
         return _median_error(values[keep], model.eval(wi[keep], wo[keep], lam))
 
+    cells = t.ds.attrs.get("cell_samples") if hasattr(t, "ds") else None
+    if cells is not None and hasattr(grid, "outgoing_samples"):
+        # samples that are cell averages (Klems, tensor tree) are compared with the model's averages
+        from ..grids.cells import cell_averages
+
+        return _median_error(values, cell_averages(model, grid, int(cells), flat, lam)), None, None
     declared = err(0.0)
     pos = t.ds.attrs.get("sample_position", "explicit") if hasattr(t, "ds") else "explicit"
     if grid.parameterization != "rusinkiewicz" or pos not in ("bin-centre", "lower-edge"):

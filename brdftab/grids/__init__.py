@@ -16,6 +16,10 @@ keys declared as :class:`~brdftab.params.Param`:
     ``theta_i, phi_i, spec_azimuth, spec_radial``: polar angles about the mirror direction (Zemax .bsdf).
 ``speos`` (:mod:`.speos`)
     ``theta_i, speos_rotation, theta_o, speos_phi``: Ansys Speos tables (φ = 0 on the mirror side).
+``klems`` (:mod:`.klems`)
+    ``klems_i, klems_o``: Klems patch pairs (LBNL WINDOW / Radiance XML matrices, 145 × 145).
+``tensor-tree`` (:mod:`.tensor_tree`)
+    Radiance tensor-tree square coordinates (XML ``TensorTree3`` / ``TensorTree4``).
 
 Axes, the φd folds and angle lists live in :mod:`.axis`.
 """
@@ -31,8 +35,11 @@ from .rusinkiewicz import RusinkiewiczGrid
 from .spherical import SphericalGrid
 from .specular_polar import SpecularPolarGrid
 from .speos import SpeosGrid
+from .klems import KlemsGrid
+from .tensor_tree import TensorTreeGrid
 
-__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "SpeosGrid", "merl_grid",
+__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "SpeosGrid",
+           "KlemsGrid", "TensorTreeGrid", "merl_grid",
            "grid_from_config", "grid_from_dataset", "grid_wavelengths", "check_grid", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS",
            "COMMON_PARAMS", "register"]
 
