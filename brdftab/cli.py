@@ -287,7 +287,7 @@ def tabulate(ctx, specs, out_dir, overwrite, allow_invalid, levels, settings, pr
 #: a copy of :func:`brdftab.formats.usable` kept here so that ``--help`` does not import the
 #: format modules (xarray, netCDF4, the models); a test holds it equal to the registry.
 USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("zarr", (".zarr",)), ("merl", (".binary",)),
-                  ("rgl", (".bsdf",)), ("exr", (".exr",)), ("zemax", (".bsdf",)), ("mbsdf", (".mbsdf",)))
+                  ("pbsdf", (".pbsdf",)), ("rgl", (".bsdf",)), ("exr", (".exr",)), ("zemax", (".bsdf",)), ("mbsdf", (".mbsdf",)))
 
 
 def _format_names() -> str:

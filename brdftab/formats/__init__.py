@@ -119,6 +119,9 @@ class FileFormat:
     #: ``store(folder) -> bool`` for a format written as a folder (a directory store): True
     #: when an existing folder is one of its stores. None: the format is a file.
     store: Callable | None = None
+    #: True for a format that stores a Mueller matrix (Mitsuba's ``.pbsdf``): it writes only
+    #: polarized BRDFs (:func:`brdftab.mueller_table.is_polarized`).
+    polarized: bool = False
 
     @property
     def options(self) -> dict:
@@ -437,7 +440,9 @@ def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, o
 
 #: Format modules shipped with brdftab (each registers itself on import). A module whose
 #: optional library is missing must still import: it imports that library inside functions.
-BUILTIN = ("netcdf", "zarr", "merl", "rgl", "exr", "zemax", "mbsdf")
+#: Content detection tries them in this order: pbsdf (a tensor file with Mueller fields)
+#: before rgl (any other tensor file).
+BUILTIN = ("netcdf", "zarr", "merl", "pbsdf", "rgl", "exr", "zemax", "mbsdf")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")
