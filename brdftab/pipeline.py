@@ -214,7 +214,8 @@ def _jobs(spec, planned, provenance, progress) -> list:
             jobs.append(_Streamed(grid, members, provenance))
             continue
         if needs_table:
-            source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance)
+            source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance,
+                              polarized=spec.polarized)
         else:
             source = spec.model
         for m in members:
@@ -375,8 +376,11 @@ def _judge_sampling(spec: Spec, jobs) -> None:
 
 
 def _n_channels(spec: Spec) -> int:
+    """Values a node of the spec's tables holds: its channels (17 times as many for a polarized
+    table: brdf and the 16 Mueller elements)."""
     layout = spec.model.layout
-    return layout.n_out(layout.resolve(spec.wavelengths))
+    n = layout.n_out(layout.resolve(spec.wavelengths))
+    return 17 * n if getattr(spec, "polarized", False) else n
 
 
 def _group_channels(spec: Spec, members, n: int) -> int:
@@ -397,8 +401,9 @@ def _streams(spec: Spec, grid, members) -> bool:
     """True when the outputs of ``grid`` are tabulated block by block into their files: every
     one can be written so (``FileFormat.stream``) and the in-memory run would exceed the memory
     budget (:func:`brdftab.table.memory_budget`)."""
-    if grid is None or not all(m.format.stream is not None and m.format.prepare is None for m in members):
-        return False
+    if grid is None or getattr(spec, "polarized", False) or not all(m.format.stream is not None and
+                                                                     m.format.prepare is None for m in members):
+        return False  # (a polarized table, 16 Mueller elements a sample beside brdf, is tabulated whole)
     return _in_memory_bytes(grid, _n_channels(spec)) > memory_budget()
 
 

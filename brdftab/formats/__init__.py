@@ -370,6 +370,10 @@ def cast_samples(table, dtype):
     if not np.array_equal(back, v, equal_nan=True):
         ds = table.ds.copy(deep=False)
         ds["brdf"] = var.copy(data=back)
+        if "mueller" in ds.data_vars:  # a polarized table's Mueller matrix is stored like its M00
+            m = ds["mueller"]
+            with np.errstate(over="ignore", invalid="ignore"):
+                ds["mueller"] = m.copy(data=np.asarray(m.values).astype(dtype).astype(v.dtype))
         out = Table(ds)
         out.origin = table.origin
         out.stored_dtype = dtype.name  # the checks say the values are judged as stored
