@@ -173,14 +173,34 @@ def _view(table):
     view = make_table(flat, table.grid, Layout(names))
     view.__class__ = _MuellerView
     view.isotropic = table.isotropic
-    floor = np.full(c * 16, -np.inf)
-    floor[::16] = 0.0  # M00 (intensity) ghosts are clamped at 0 like brdf's
-    view._floor = floor
-    nan = np.isnan(flat)
-    view._nan = nan.any(axis=-1) if nan.any() else None
     view.outside = table.outside
     table.__dict__["_mueller_view"] = view
     return view
+
+
+def element_floor(n_channels: int) -> np.ndarray:
+    """Lowest ghost value per Mueller-element channel (16 per channel, M00 first): 0 for M00
+    (an intensity, clamped like ``brdf``), −inf for the others (they may be negative)."""
+    floor = np.full(n_channels * 16, -np.inf)
+    floor[::16] = 0.0
+    return floor
+
+
+def ghosted(values, grid):
+    """``(values, valid)``: Mueller samples ``grid.shape + (16·C,)`` with the horizon ghosts of
+    :func:`brdftab.table._horizon_ghosts` at below-horizon nodes (M00 clamped at 0, the other
+    elements not) and the nodes that hold data (None: all); NaN samples are missing."""
+    above = grid.node_above_horizon()
+    nan = np.isnan(values).any(axis=-1)
+    bad = np.broadcast_to(nan[..., None], values.shape) if nan.any() else None
+    if above.all() and bad is None:
+        return values, None
+    values, ok = _horizon_ghosts(np.where(bad, 0.0, values) if bad is not None else values, above, grid, bad,
+                                 floor=element_floor(values.shape[-1] // 16))
+    valid = np.broadcast_to(ok[..., None], values.shape)
+    if bad is not None:
+        valid = valid & ~bad
+    return values, valid
 
 
 class _MuellerView(Table):
@@ -188,21 +208,9 @@ class _MuellerView(Table):
 
     def _interp_data(self):
         cached = getattr(self, "_interp", None)
-        if cached is not None:
-            return cached
-        values = self.values
-        above = self.grid.node_above_horizon()
-        bad = None if self._nan is None else np.broadcast_to(self._nan[..., None], values.shape)
-        if above.all() and bad is None:
-            valid = None
-        else:
-            values, ok = _horizon_ghosts(np.where(bad, 0.0, values) if bad is not None else values, above,
-                                         self.grid, bad, floor=self._floor)
-            valid = np.broadcast_to(ok[..., None], values.shape)
-            if bad is not None:
-                valid = valid & ~bad
-        self._interp = (values, valid)
-        return self._interp
+        if cached is None:
+            cached = self._interp = ghosted(self.values, self.grid)
+        return cached
 
 
 def ghosted_mueller(table) -> np.ndarray:
@@ -210,11 +218,15 @@ def ghosted_mueller(table) -> np.ndarray:
     uses at below-horizon nodes (what a reader that interpolates every stored node, such as
     Mitsuba's ``measured_polarized``, should find there); NaN where no value is known."""
     view = _view(table)
-    values, valid = view._interp_data()
+    return ghosted_nan(*view._interp_data(), table.grid)
+
+
+def ghosted_nan(values, valid, grid):
+    """``values`` (from :func:`ghosted`) ``grid.shape + (C, 4, 4)`` with NaN where not valid."""
     out = np.array(values, float, copy=True)
     if valid is not None:
         out[~np.asarray(valid)] = np.nan
-    return out.reshape(table.grid.shape + (-1, 4, 4))
+    return out.reshape(grid.shape + (-1, 4, 4))
 
 
 def eval_mueller(table, wi, wo, wavelengths=None, basis: str = MITSUBA_BASIS) -> np.ndarray:

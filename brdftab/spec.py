@@ -234,6 +234,7 @@ def parse_spec(raw: dict, path: Path, sha256: str = "") -> Spec:
         raise _fail(path, f"grid.{exc.key}" if exc.key else "grid", exc.detail) from None
     polarized = _polarized(grid_cfg, model, grid, path)
     outputs = _outputs(raw.get("output"), path)
+    _polarized_outputs(outputs, model, path)
     validation = _validation(raw.get("validation", {}), path)
     return Spec(path=path, sha256=sha256, model=model, grid=grid, wavelengths=wavelengths, outputs=outputs,
                 validation=validation, description=description, raw=raw, polarized=polarized)
@@ -367,6 +368,17 @@ def _outputs(raw, path):
             target = path.parent / target
         outs.append(Output(path=target, format=fmt.name, options=options, as_written=Path(item["path"])))
     return outs
+
+
+def _polarized_outputs(outputs, model, path) -> None:
+    """An output in a format that holds a Mueller matrix (.pbsdf) needs a polarized model."""
+    from . import formats
+    from .mueller_table import is_polarized
+
+    for i, o in enumerate(outputs):
+        if formats.FORMATS[o.format].polarized and not is_polarized(model):
+            raise _fail(path, f"output[{i}].path", f"{o.as_written} holds a Mueller matrix (format {o.format}): the "
+                        f"model {model.name!r} is not polarized")
 
 
 def _validation(raw, path):

@@ -117,3 +117,12 @@ def test_mueller_plot_draws_every_element(tmp_path):
     np.testing.assert_allclose(y, ref[:, 0, 1] / ref[:, 0, 0], rtol=1e-12)
     with pytest.raises(brdftab.errors.BrdftabError, match="not polarized"):
         plot.figure("mueller", brdftab.models.create("lambert", albedo=0.5))
+
+
+def test_the_html_report_draws_the_mueller_matrix_of_a_polarized_brdf():
+    from brdftab.report_html import Entry, render
+
+    model = GGXConductor(0.3)
+    report = run_checks(model, only=("mueller_realizability",))
+    page = render([Entry(report, model)])
+    assert 'id="check-0-mueller_realizability"' in page and 'alt="Mueller matrix"' in page

@@ -294,3 +294,22 @@ def test_cli_converts_between_netcdf_and_pbsdf_and_refuses_in_one_line(tmp_path)
     proc = run("convert", plain, tmp_path / "plain.pbsdf")
     one_error(proc.stderr, proc.returncode, "not polarized")
     assert not (tmp_path / "plain.pbsdf").exists()
+
+
+@pytest.mark.parametrize("grid", [RusinkiewiczGrid(9, 7, 12, phi_d_fold="none"),
+                                  RusinkiewiczGrid(np.radians(np.arange(0, 91, 10.0)), np.radians(np.arange(0, 91, 10.0)),
+                                                   12, phi_d_fold="none", sample_position="lower-edge")],
+                         ids=["bin-centre", "nodes-at-0-90-and-180"])
+def test_the_streamed_writer_writes_the_in_memory_writers_file(grid, tmp_path):
+    from brdftab.formats.pbsdf import stream_pbsdf, write_pbsdf
+
+    model = GGXConductor(0.3)
+    write_pbsdf(tabulate(model, grid, polarized=True, progress=False), tmp_path / "a.pbsdf")
+    slabs = []
+    stream_pbsdf(model, grid, tmp_path / "b.pbsdf", progress=lambda done, total: slabs.append((done, total)))
+    a, b = (parse_tensor((tmp_path / f"{x}.pbsdf").read_bytes()) for x in "ab")
+    for k in ("theta_h", "theta_d", "phi_d", "wvls", "M"):
+        assert a[k].dtype == b[k].dtype and np.array_equal(a[k], b[k]), k
+    assert slabs[-1] == (a["M"].shape[0], a["M"].shape[0])
+    with pytest.raises(BrdftabError, match="not polarized"):
+        stream_pbsdf(brdftab.models.create("lambert", albedo=0.5), grid, tmp_path / "c.pbsdf")

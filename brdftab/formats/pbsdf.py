@@ -40,7 +40,7 @@ from ..params import Param
 from . import FileFormat, register
 from ._tensor import MAGIC, encode_tensor, parse_tensor
 
-__all__ = ["read_pbsdf", "write_pbsdf", "prepare_pbsdf", "pbsdf_fields", "table_from_fields", "default_grid",
+__all__ = ["read_pbsdf", "write_pbsdf", "stream_pbsdf", "prepare_pbsdf", "pbsdf_fields", "table_from_fields", "default_grid",
            "KAIST_WAVELENGTHS_NM", "N_WAVELENGTHS"]
 
 #: Wavelengths of the KAIST pBRDF dataset [nm]; a grey table is written at these.
@@ -173,12 +173,7 @@ def pbsdf_fields(table) -> dict:
         raise BrdftabError("a .pbsdf interpolates linearly in θh; a table whose θh nodes are warped (MERL spacing) is "
                            "written through a grid with the same nodes taken as a list")
     file_lam, _ = _wavelengths(table)
-    m = ghosted_mueller(table)  # [θh, θd, φd, C, 4, 4]
-    above = grid.node_above_horizon()
-    unknown = np.isnan(m[..., 0, 0]) & ~above[..., None]
-    m = np.where(unknown[..., None, None], 0.0, m)  # below the horizon without a ghost: f = 0
-    if m.shape[3] == 1:
-        m = np.repeat(m, N_WAVELENGTHS, axis=3)
+    m = _file_slab(ghosted_mueller(table), grid.node_above_horizon())  # [θh, θd, φd, λ, 4, 4]
     # [θh, θd, φd, λ, 4, 4] -> [φd, θd, θh, λ, 4, 4], φd with both seam nodes
     m = np.moveaxis(m, 2, -1)
     phi, m = _seam(m, pd.values)
@@ -212,6 +207,88 @@ def _plain(v):
     if hasattr(v, "item"):
         return v.item()
     return v
+
+
+def _file_slab(m, above):
+    """Mueller values ``[..., C, 4, 4]`` (ghosted, NaN where unknown) as a file stores them: 0
+    below the horizon where no ghost exists, a grey channel repeated to five wavelengths."""
+    unknown = np.isnan(m[..., 0, 0]) & ~np.asarray(above)[..., None]
+    m = np.where(unknown[..., None, None], 0.0, m)
+    return np.repeat(m, N_WAVELENGTHS, axis=-3) if m.shape[-3] == 1 else m
+
+
+def stream_pbsdf(brdf, grid, path, wavelengths_nm=None, progress=None) -> None:
+    """Write a ``.pbsdf`` of the polarized model ``brdf`` on ``grid`` one φd slab at a time (a
+    slab of θh × θd nodes in memory, never the table): the file :func:`write_pbsdf` writes from
+    ``tabulate(brdf, grid, polarized=True)``, bit for bit (tested), for grids too large for
+    memory such as the KAIST layout. ``path`` is written as it is (no temporary, no checks):
+    the caller writes to a temporary and judges the file. ``progress``: a callable given the
+    slabs done and their count."""
+    from ..grids import RusinkiewiczGrid
+    from ..mueller_table import ghosted, ghosted_nan, mueller_at_nodes, require_polarized
+    from ._tensor import tensor_header
+
+    require_polarized(brdf)
+    if not isinstance(grid, RusinkiewiczGrid) or grid.anisotropic or grid.phi_d_fold != "none" \
+            or grid.axes[0].warp != "linear" or grid.axes[2].period is None:
+        raise BrdftabError(f"a .pbsdf is streamed on an isotropic Rusinkiewicz grid over the whole φd circle with "
+                           f"linear θh, not {grid.describe()}")
+    file_lam, lam = _wavelengths(brdf, wavelengths_nm)
+    th, td, pd = grid.axes
+    n = brdf.layout.n_out(lam)
+
+    def slab(phi):
+        g = RusinkiewiczGrid(th.values, td.values, [phi], phi_d_fold="none")
+        g._set_axes((th, td, g.axes[2]))
+        out = np.empty(g.shape + (n, 4, 4))
+        mueller_at_nodes(brdf, g, lam, out, chunk=4096)
+        values, valid = ghosted(out.reshape(g.shape + (n * 16,)), g)
+        return _file_slab(ghosted_nan(values, valid, g), g.node_above_horizon())[:, :, 0]  # [θh, θd, λ, 4, 4]
+
+    p = np.where(pd.values > np.pi + 1e-12, pd.values - 2 * np.pi, pd.values)
+    order = np.argsort(p, kind="stable")
+    at_pi = np.abs(p[order] - np.pi) <= 1e-12
+    inner = order[~at_pi]
+    if at_pi.any():
+        seam = slab(pd.values[order[at_pi][0]])
+    elif len(p) == 1:
+        seam = slab(pd.values[0])
+    else:
+        lo, hi = p[order[-1]], p[order[0]] + 2 * np.pi
+        t = (np.pi - lo) / (hi - lo)
+        seam = (1 - t) * slab(pd.values[order[-1]]) + t * slab(pd.values[order[0]])
+    phi_nodes = np.concatenate([[-np.pi], p[inner], [np.pi]])
+    desc = {"format": "brdftab pbsdf", "model": brdf.name, "parameters": json.dumps(brdf.parameters, sort_keys=True),
+            "origin": str(getattr(brdf, "origin", "analytic")), "reciprocal": int(bool(brdf.reciprocal))}
+    if not brdf.spectral:
+        desc["grey"] = 1
+    small = {"theta_h": th.values.astype(np.float32)[None, :], "theta_d": td.values.astype(np.float32)[None, :],
+             "phi_d": phi_nodes.astype(np.float32)[None, :], "wvls": file_lam.astype(np.uint16),
+             "description": np.frombuffer(json.dumps(desc, sort_keys=True).encode("utf-8"), np.uint8)}
+    shape = (phi_nodes.size, len(td.values), len(th.values), N_WAVELENGTHS, 4, 4)
+    layout = {k: (a.dtype, a.shape) for k, a in small.items()}
+    layout["M"] = (np.dtype("<f4"), shape)
+    header, offsets = tensor_header(layout)
+    rows = [seam] + [None] * inner.size + [seam]
+
+    def row32(m):
+        with np.errstate(over="ignore", invalid="ignore"):
+            out = np.ascontiguousarray(m.transpose(1, 0, 2, 3, 4)).astype("<f4")  # [θd, θh, λ, 4, 4]
+        if (np.isinf(out) & ~np.isinf(m.transpose(1, 0, 2, 3, 4))).any():
+            raise BrdftabError("Mueller elements exceed the float32 range of a .pbsdf")
+        return out.tobytes()
+
+    with open(path, "wb") as fh:
+        fh.write(header)
+        for k, a in small.items():
+            fh.seek(offsets[k])
+            fh.write(np.ascontiguousarray(a).tobytes())
+        fh.seek(offsets["M"])
+        for r in range(len(rows)):
+            m = rows[r] if rows[r] is not None else slab(pd.values[inner[r - 1]])
+            fh.write(row32(m))
+            if progress is not None:
+                progress(r + 1, len(rows))
 
 
 def write_pbsdf(table, path, **options):
