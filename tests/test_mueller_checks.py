@@ -126,3 +126,23 @@ def test_the_html_report_draws_the_mueller_matrix_of_a_polarized_brdf():
     report = run_checks(model, only=("mueller_realizability",))
     page = render([Entry(report, model)])
     assert 'id="check-0-mueller_realizability"' in page and 'alt="Mueller matrix"' in page
+
+
+def test_validate_reports_a_non_physical_pbsdf_in_json_and_junit(tmp_path):
+    from _cli import cli
+
+    path = tmp_path / "bad.pbsdf"
+    brdftab.save(Scaled(GGXConductor(0.3), FLIP_S3), path, grid=RusinkiewiczGrid(6, 6, 12, phi_d_fold="none"))
+    junit = tmp_path / "r.xml"
+    only = [x for name in ("energy", "albedo", "tabulation", "reciprocity", "isotropy", "bilateral", "mueller_albedo")
+            for x in ("--level", f"{name}=off")]
+    result = cli("validate", path, "--json", "--junit", junit, *only)
+    assert result.exit_code == 1, result.output
+    doc = json.loads(result.stdout)
+    checks = {c["name"]: c for c in doc["reports"][0]["checks"]}
+    real = checks["mueller_realizability"]
+    assert real["status"] == "fail" and real["figure"] == pytest.approx(-0.5, abs=0.05)
+    assert set(real["data"]["where"]) == {"theta_h_deg", "theta_d_deg", "phi_d_deg", "channel"}
+    assert checks["mueller_bounds"]["status"] == "pass"
+    assert any(tc.get("name", "").endswith("mueller_realizability") and tc.find("failure") is not None
+               for tc in ET.parse(junit).getroot().iter("testcase"))

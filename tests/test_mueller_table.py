@@ -170,3 +170,21 @@ def test_scaled_test_model_is_what_the_checks_tests_use():
     m = Scaled(GGXConductor(0.3), np.diag([1.0, 1.0, 1.0, -1.0]))
     a, b = pairs(5)
     assert np.allclose(m.eval_mueller(a, b)[..., 3, 3], -GGXConductor(0.3).eval_mueller(a, b)[..., 3, 3])
+
+
+def test_a_polarized_table_resampled_onto_another_grid_stays_polarized(table, tmp_path):
+    out = tmp_path / "fine.nc"
+    fine = RusinkiewiczGrid(16, 16, 32, phi_d_fold="none")
+    brdftab.save(table, out, grid=fine)
+    back = brdftab.open(out)
+    assert back.polarized and back.grid.equals(fine)
+    a, b = pairs(40, seed=9)
+    # the resampled table holds the source table's interpolation at its nodes
+    wi, wo = fine.directions()
+    up = np.flatnonzero((wi[:, 2] > 0.2) & (wo[:, 2] > 0.2))[::50]
+    assert np.allclose(back.ds["mueller"].values.reshape(-1, 5, 4, 4)[up], table.eval_mueller(wi[up], wo[up]),
+                       rtol=0, atol=1e-12 * table.values.max())
+    # a folded grid cannot hold it: f_r is written, with a warning
+    with pytest.warns(brdftab.errors.BrdftabWarning, match="only f_r"):
+        brdftab.save(table, tmp_path / "merl.nc", grid=RusinkiewiczGrid(8, 8, 16))
+    assert not brdftab.open(tmp_path / "merl.nc").polarized

@@ -46,12 +46,20 @@ _PAULI = np.array([[[1, 0], [0, 1]], [[1, 0], [0, -1]], [[0, 1], [1, 0]], [[0, -
 _BASIS = np.einsum("iab,jcd->ijacbd", _PAULI, _PAULI.conj()).reshape(4, 4, 4, 4)
 
 
+#: Matrices per block of the eigenvalue computation (bounds its complex temporaries).
+BLOCK = 1 << 16
+
+
 def coherency_eigenvalues(m) -> np.ndarray:
     """Eigenvalues (ascending) of Cloude's coherency matrix of Mueller matrices ``m[..., 4, 4]``:
-    ``[..., 4]``, summing to M00."""
+    ``[..., 4]``, summing to M00 (computed in blocks of :data:`BLOCK` matrices)."""
     m = np.asarray(m, float)
-    h = 0.25 * np.einsum("...ij,ijab->...ab", m, _BASIS)
-    return np.linalg.eigvalsh(h)
+    flat = m.reshape(-1, 4, 4)
+    out = np.empty((flat.shape[0], 4))
+    for a in range(0, flat.shape[0], BLOCK):
+        h = 0.25 * np.einsum("kij,ijab->kab", flat[a:a + BLOCK], _BASIS)
+        out[a:a + BLOCK] = np.linalg.eigvalsh(h)
+    return out.reshape(m.shape[:-2] + (4,))
 
 
 def depolarization_index(m) -> np.ndarray:

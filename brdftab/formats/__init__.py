@@ -294,7 +294,12 @@ def _default_prepare(brdf, grid, **options):
         return brdf
     if grid is None:
         raise BrdftabError(f"a grid is needed to write {brdf.name!r} (pass grid=...)")
-    return tabulate(brdf, grid)
+    polarized = isinstance(brdf, Table) and brdf.polarized
+    if polarized and getattr(grid, "phi_d_fold", "none") != "none":
+        warnings.warn(f"{brdf.describe()} holds a Mueller matrix; {grid.describe()} folds phi_d, so only f_r "
+                      "(its M00) is written", BrdftabWarning, stacklevel=4)
+        polarized = False
+    return tabulate(brdf, grid, polarized=polarized)  # a polarized table resampled stays polarized
 
 
 def prepare(fmt: FileFormat, brdf, grid, options: dict | None = None):
