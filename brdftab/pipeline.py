@@ -390,6 +390,8 @@ def _group_channels(spec: Spec, members, n: int) -> int:
     formats that store colour (converted as it is sampled), else the model's ``n``."""
     if spec.model.spectral and members and all(m.format.colour and m.format.prepare is not None for m in members):
         return 3
+    if not getattr(spec, "polarized", False) and any(m.format.polarized for m in members):
+        return 17 * n  # a .pbsdf output is tabulated polarized: brdf and 16 Mueller elements a sample
     return n
 
 
@@ -419,6 +421,12 @@ def _check_memory(spec: Spec, planned) -> None:
         if grid is None or _streams(spec, grid, members):  # (a format sampling the model itself on a
             continue                                       # grid it names, like MERL's, holds it whole)
         need = _in_memory_bytes(grid, _group_channels(spec, members, n))
+        if need > budget and (getattr(spec, "polarized", False) or any(m.format.polarized for m in members)):
+            raise BrdftabError(
+                f"{spec.path.name}: tabulating and checking the polarized table {grid.describe()} (brdf and 16 Mueller "
+                f"elements a sample) needs about {need / 2**30:.3g} GiB of memory, more than the budget of "
+                f"{budget / 2**30:.3g} GiB; polarized tables are tabulated whole: use a coarser grid or raise the "
+                "budget (--memory, BRDFTAB_MEMORY)")
         if need > budget:
             whole = [m.target.name for m in members if m.format.stream is None]
             raise BrdftabError(

@@ -188,3 +188,16 @@ def test_a_polarized_table_resampled_onto_another_grid_stays_polarized(table, tm
     with pytest.warns(brdftab.errors.BrdftabWarning, match="only f_r"):
         brdftab.save(table, tmp_path / "merl.nc", grid=RusinkiewiczGrid(8, 8, 16))
     assert not brdftab.open(tmp_path / "merl.nc").polarized
+
+
+def test_a_polarized_run_over_the_memory_budget_is_refused_up_front(tmp_path, monkeypatch):
+    monkeypatch.setitem(MODELS, "test-polarized", _SpecModel)
+    spec = tmp_path / "big.toml"
+    spec.write_text('[model]\nname = "test-polarized"\n[grid]\ntype = "rusinkiewicz"\nn_theta_h = 90\nn_theta_d = 90\n'
+                    'n_phi_d = 360\nphi_d_fold = "none"\nwavelengths_nm = [450, 500, 550, 600, 650]\n'
+                    '[[output]]\npath = "big.pbsdf"\n')
+    from brdftab.pipeline import run
+
+    with pytest.raises(BrdftabError, match="polarized table .* needs about .* GiB") as info:
+        run(load_spec(spec))
+    assert "\n" not in str(info.value) and not (tmp_path / "big.pbsdf").exists()

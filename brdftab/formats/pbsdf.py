@@ -30,6 +30,7 @@ Reference: mitsuba-renderer/mitsuba3 ``src/bsdfs/measured_polarized.cpp``; Baek 
 from __future__ import annotations
 
 import json
+import os
 import struct
 
 import numpy as np
@@ -352,16 +353,16 @@ def table_from_fields(fields: dict, where: str):
                           f"{np.degrees(pd[0]):.6g} to {np.degrees(pd[-1]):.6g} degrees")
     th = np.clip(th, 0.0, HALF_PI)
     td = np.clip(td, 0.0, HALF_PI)
-    # φd: the two seam nodes are one node (their mean: a measurement may differ at ±180°)
-    seam = 0.5 * (m[0].astype(float) + m[-1].astype(float))
-    mid = pd[1:-1]
-    phi = np.concatenate([mid, [np.pi]])
-    vals = np.concatenate([m[1:-1].astype(float), seam[None]], axis=0)
+    # φd: the two seam nodes are one node (their mean: a measurement may differ at ±180°), kept
+    # as the last row; then [φd, θd, θh, λ, 4, 4] -> [θh, θd, φd, λ, 4, 4] in φd order, one copy
+    if not m.flags.writeable:
+        m = m.copy()
+    m[-1] = (0.5 * (m[0].astype(float) + m[-1].astype(float))).astype(np.float32)
+    phi = np.concatenate([pd[1:-1], [np.pi]])
     phi = np.where(phi < 0, phi + 2 * np.pi, phi)
     order = np.argsort(phi, kind="stable")
-    phi, vals = phi[order], vals[order]
-    # [φd, θd, θh, λ, 4, 4] -> [θh, θd, φd, λ, 4, 4]
-    mueller = np.ascontiguousarray(vals.transpose(2, 1, 0, 3, 4, 5)).astype(np.float32)
+    phi = phi[order]
+    mueller = np.ascontiguousarray(m.transpose(2, 1, 0, 3, 4, 5)[:, :, 1 + order])
     try:
         grid = RusinkiewiczGrid(th, td, phi, phi_d_fold="none", name="pbsdf")
     except ParameterError as exc:
@@ -404,12 +405,18 @@ def table_from_fields(fields: dict, where: str):
 
 def read_pbsdf(path):
     """Read a ``.pbsdf`` into a polarized table (see the module docstring)."""
+    import mmap
+
     try:
         with open(path, "rb") as fh:
-            data = fh.read()
+            size = os.fstat(fh.fileno()).st_size
+            if size == 0:
+                return table_from_fields(parse_tensor(b"", str(path)), str(path))
+            with mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ) as data:  # (a KAIST file is ~1 GB)
+                fields = parse_tensor(data, str(path))
     except OSError as exc:
         raise FormatError(f"{path}: cannot read ({exc.strerror or exc})") from None
-    return table_from_fields(parse_tensor(data, str(path)), str(path))
+    return table_from_fields(fields, str(path))
 
 
 def _field_names(head: bytes) -> set:
