@@ -146,3 +146,16 @@ def test_validate_reports_a_non_physical_pbsdf_in_json_and_junit(tmp_path):
     assert checks["mueller_bounds"]["status"] == "pass"
     assert any(tc.get("name", "").endswith("mueller_realizability") and tc.find("failure") is not None
                for tc in ET.parse(junit).getroot().iter("testcase"))
+
+
+def test_polarized_reciprocity_off_the_nodes_of_a_gonio_table_warns_instead_of_failing():
+    from brdftab.grids import SphericalGrid
+
+    # θi and θo on different nodes: a pair and its twin are interpolated from different nodes
+    grid = SphericalGrid(np.radians(np.arange(0, 90, 15.0)), [0.0], np.radians(np.arange(0, 90, 10.0)),
+                         np.radians(np.arange(0, 360, 30.0)))
+    table = tabulate(GGXConductor(0.3), grid, polarized=True, progress=False)
+    r = run_checks(table, only=("polarized_reciprocity",), config={"polarized_reciprocity": {"pairs": 512}})
+    out = r.get("polarized_reciprocity")
+    assert "interpolated pairs" in out.detail
+    assert out.status == "warn" and "reported, not judged" in out.detail  # coarse: the twins differ
