@@ -34,7 +34,6 @@ import os
 import struct
 
 import numpy as np
-import xarray as xr
 
 from ..errors import BrdftabError, FormatError, ParameterError
 from ..params import Param
@@ -322,7 +321,6 @@ def table_from_fields(fields: dict, where: str):
     """A polarized :class:`~brdftab.table.Table` from the fields of a ``.pbsdf``."""
     from ..grids import RusinkiewiczGrid
     from ..grids.axis import HALF_PI, Axis, angle_axis
-    from ..mueller_table import MUELLER_VAR, mueller_coords, mueller_variable
     from ..table import Table, make_table
     from ..channels import Layout
 
