@@ -15,6 +15,8 @@ Layout::
     [grid]                   # see brdftab.grids.grid_from_config
     type = "merl"            # merl | rusinkiewicz | spherical
     # wavelengths_nm = [450, 550, 650]   (spectral models)
+    # polarized = true       (polarized models, phi_d_fold = "none": the Mueller matrix too;
+    #                         a .pbsdf output always holds it)
 
     [[output]]               # one table per output; path relative to this file's folder
     path = "ggx-gold.nc"
