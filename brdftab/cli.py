@@ -287,7 +287,7 @@ def tabulate(ctx, specs, out_dir, overwrite, allow_invalid, levels, settings, pr
 #: a copy of :func:`brdftab.formats.usable` kept here so that ``--help`` does not import the
 #: format modules (xarray, netCDF4, the models); a test holds it equal to the registry.
 USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("zarr", (".zarr",)), ("merl", (".binary",)),
-                  ("rgl", (".bsdf",)), ("exr", (".exr",)), ("zemax", (".bsdf",)),
+                  ("pbsdf", (".pbsdf",)), ("rgl", (".bsdf",)), ("exr", (".exr",)), ("zemax", (".bsdf",)),
                   ("lighttools", (".bsdf",)), ("mbsdf", (".mbsdf",)),
                   ("speos", (".anisotropicbsdf",)), ("speos-brdf", (".brdf",)), ("radiance", (".xml",)))
 
@@ -564,6 +564,10 @@ def info(file, as_json):
     lines.append(f"  values:      {data['dtype']}, {data['samples']} samples, min {data['min']:.6g}, max "
                  f"{data['max']:.6g} sr-1, {data['nonfinite']} non-finite, {data['negative']} negative{missing}"
                  if data["min"] is not None else f"  values:      {data['samples']} samples, none finite{missing}")
+    if getattr(table, "polarized", False):
+        var = table.ds["mueller"]
+        lines.append(f"  mueller:     4 x 4 per sample ({var.dtype}), basis {var.attrs.get('mueller_basis')}, "
+                     f"{var.attrs.get('mueller_circular')}; brdf is its M00")
     for key, what in (("validation", "validation:"), ("input_validation", "input validation:")):
         if key in validation:
             v = validation[key]

@@ -18,7 +18,7 @@ __all__ = ["plot", "KINDS", "QUANTITIES"]
 
 #: Static copies of :data:`brdftab.plot.KINDS` and ``QUANTITIES`` (so that ``--help`` does not
 #: import matplotlib); a test holds them equal.
-KINDS = ("in-plane", "polar", "slice", "hemisphere", "albedo", "compare")
+KINDS = ("in-plane", "polar", "slice", "hemisphere", "albedo", "compare", "mueller")
 QUANTITIES = ("brdf", "brdf-cos", "brf", "relative")
 
 
@@ -80,7 +80,8 @@ def _source(path: Path):
               help="in-plane curves for several θi; polar: the same in polar axes; slice: the θh × θd image at "
                    "one φd; hemisphere: one incidence over the exit hemisphere (equal-area map); albedo: the "
                    "directional albedo a(θi); compare: FILE|SPEC and --against side by side, with their "
-                   "difference.")
+                   "difference; mueller: a polarized BRDF's Mueller matrix in the plane of incidence (M00 and "
+                   "Mij / M00 against θo).")
 @click.option("--theta-i-deg", "theta_i", metavar="DEG[,DEG...]",
               help="Incidence angles in degrees (default 0,30,60; hemisphere: one, default 30; albedo: 0 to 87 "
                    "in 3° steps; a gonio table: its own).")
@@ -123,7 +124,8 @@ def plot(source, out, kind, theta_i, phi_i, phi_d, quantity, log, against, ratio
                "slice": {"--phi-d-deg", "--quantity", "--log/--linear"},
                "hemisphere": {"--quantity", "--log/--linear", "--phi-i-deg", "--theta-i-deg"},
                "albedo": {"--phi-i-deg", "--theta-i-deg"},
-               "compare": {"--against", "--ratio", "--quantity", "--log/--linear", "--phi-i-deg", "--theta-i-deg"}}
+               "compare": {"--against", "--ratio", "--quantity", "--log/--linear", "--phi-i-deg", "--theta-i-deg"},
+               "mueller": {"--log/--linear", "--phi-i-deg", "--theta-i-deg"}}
     for option, value in given.items():
         if value is not None and option not in allowed[kind]:
             raise click.UsageError(f"{option} does not apply to --kind {kind}")

@@ -214,7 +214,8 @@ def _jobs(spec, planned, provenance, progress) -> list:
             jobs.append(_Streamed(grid, members, provenance))
             continue
         if needs_table:
-            source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance)
+            source = tabulate(spec.model, grid, spec.wavelengths, progress=progress, provenance=provenance,
+                              polarized=spec.polarized)
         else:
             source = spec.model
         for m in members:
@@ -365,6 +366,8 @@ def _judge_sampling(spec: Spec, jobs) -> None:
     for job in jobs:
         if job.planned.format.prepare is None or not isinstance(job.checked, BRDF):
             continue
+        if job.planned.format.polarized:  # a .pbsdf is tabulated on the planned grid node for node, like a table
+            continue
         gate, _ = difference(_reference(spec, job)[0], job.checked)
         beyond = gate.exceeds() if gate is not None else []
         if beyond:
@@ -375,8 +378,11 @@ def _judge_sampling(spec: Spec, jobs) -> None:
 
 
 def _n_channels(spec: Spec) -> int:
+    """Values a node of the spec's tables holds: its channels (17 times as many for a polarized
+    table: brdf and the 16 Mueller elements)."""
     layout = spec.model.layout
-    return layout.n_out(layout.resolve(spec.wavelengths))
+    n = layout.n_out(layout.resolve(spec.wavelengths))
+    return 17 * n if getattr(spec, "polarized", False) else n
 
 
 def _group_channels(spec: Spec, members, n: int) -> int:
@@ -384,6 +390,8 @@ def _group_channels(spec: Spec, members, n: int) -> int:
     formats that store colour (converted as it is sampled), else the model's ``n``."""
     if spec.model.spectral and members and all(m.format.colour and m.format.prepare is not None for m in members):
         return 3
+    if not getattr(spec, "polarized", False) and any(m.format.polarized for m in members):
+        return 17 * n  # a .pbsdf output is tabulated polarized: brdf and 16 Mueller elements a sample
     return n
 
 
@@ -397,8 +405,9 @@ def _streams(spec: Spec, grid, members) -> bool:
     """True when the outputs of ``grid`` are tabulated block by block into their files: every
     one can be written so (``FileFormat.stream``) and the in-memory run would exceed the memory
     budget (:func:`brdftab.table.memory_budget`)."""
-    if grid is None or not all(m.format.stream is not None and m.format.prepare is None for m in members):
-        return False
+    if grid is None or getattr(spec, "polarized", False) or not all(m.format.stream is not None and
+                                                                     m.format.prepare is None for m in members):
+        return False  # (a polarized table, 16 Mueller elements a sample beside brdf, is tabulated whole)
     return _in_memory_bytes(grid, _n_channels(spec)) > memory_budget()
 
 
@@ -412,6 +421,12 @@ def _check_memory(spec: Spec, planned) -> None:
         if grid is None or _streams(spec, grid, members):  # (a format sampling the model itself on a
             continue                                       # grid it names, like MERL's, holds it whole)
         need = _in_memory_bytes(grid, _group_channels(spec, members, n))
+        if need > budget and (getattr(spec, "polarized", False) or any(m.format.polarized for m in members)):
+            raise BrdftabError(
+                f"{spec.path.name}: tabulating and checking the polarized table {grid.describe()} (brdf and 16 Mueller "
+                f"elements a sample) needs about {need / 2**30:.3g} GiB of memory, more than the budget of "
+                f"{budget / 2**30:.3g} GiB; polarized tables are tabulated whole: use a coarser grid or raise the "
+                "budget (--memory, BRDFTAB_MEMORY)")
         if need > budget:
             whole = [m.target.name for m in members if m.format.stream is None]
             raise BrdftabError(

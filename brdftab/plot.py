@@ -21,7 +21,10 @@ returns PNG bytes. The kinds (:data:`KINDS`, :func:`figure` dispatches by name):
   :func:`brdftab.integrate.albedo_curve`, with the white-sky albedo in the legend;
   :func:`albedo_values` draws a curve already computed (an albedo check's);
 * ``compare`` (:func:`compare`) — two BRDFs' in-plane curves and, below, their difference
-  (or ratio).
+  (or ratio);
+* ``mueller`` (:func:`mueller`) — a polarized BRDF's Mueller matrix in the plane of incidence,
+  4 × 4 panels against θo: M00 in sr⁻¹ (panel 0, 0) and the normalized elements M_ij / M00
+  (in [−1, 1]) in brdftab's ``mitsuba`` basis (both beams' x perpendicular to the plane).
 
 The quantity on the axis (:data:`QUANTITIES`) is named with its unit: ``brdf`` is f_r in sr⁻¹,
 ``brdf-cos`` is f_r·cosθo in sr⁻¹, ``brf`` the reflectance factor π·f_r (dimensionless; what
@@ -62,9 +65,9 @@ from .geometry import hd_to_io, sph_to_vec
 __all__ = ["KINDS", "QUANTITIES", "FORMATS", "MAX_WAVELENGTHS", "figure", "in_plane", "polar", "slice_image",
            "hemisphere", "hemisphere_values", "hemisphere_grid", "albedo", "albedo_values", "compare", "equal_area",
            "equal_area_inverse", "artists", "save", "to_png_bytes", "output_format", "parameters_text",
-           "theta_o_in_plane", "in_plane_directions", "pick_evenly"]
+           "theta_o_in_plane", "in_plane_directions", "pick_evenly", "mueller"]
 
-KINDS = ("in-plane", "polar", "slice", "hemisphere", "albedo", "compare")
+KINDS = ("in-plane", "polar", "slice", "hemisphere", "albedo", "compare", "mueller")
 #: Output formats by extension.
 FORMATS = {".png": "png", ".svg": "svg", ".pdf": "pdf"}
 #: Wavelengths of a spectral BRDF plotted by default (evenly picked from its own).
@@ -740,11 +743,63 @@ def compare(brdf, other, *, theta_i_deg=None, phi_i_deg: float = 0.0, quantity: 
     return fig
 
 
+def mueller(brdf, *, theta_i_deg=None, phi_i_deg: float = 0.0, log=None, wavelengths=None, rgb: bool = False,
+            channel=None, title=None, label=None) -> Figure:
+    """The Mueller matrix of a polarized BRDF in the plane of incidence: 4 × 4 panels of curves
+    against θo [deg] (one per θi and channel), M00 [sr⁻¹] in panel (0, 0) and M_ij / M00 in the
+    others (NaN where M00 = 0), in brdftab's ``mitsuba`` basis. Curves' ``gid``:
+    ``"theta_i=30|channel=550 nm|element=m01"``."""
+    from .mueller_table import is_polarized
+
+    if not is_polarized(brdf):
+        raise BrdftabError(f"{brdf.name} is not polarized: it has no Mueller matrix to plot")
+    if rgb:
+        raise BrdftabError("a Mueller matrix is plotted per wavelength, not as sRGB (leave out --rgb)")
+    theta_i = _theta_list(theta_i_deg, brdf=brdf)
+    series = _series(brdf, wavelengths, False, channel)
+    theta_o = theta_o_in_plane()
+    wi, wo = in_plane_directions(theta_i, theta_o, phi_i_deg)
+    m = np.asarray(brdf.eval_mueller(wi, wo, series.lam), float)  # [I, N, C, 4, 4]
+    m00 = m[..., 0, 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        norm = np.where(m00[..., None, None] > 0, m / m00[..., None, None], np.nan)
+    fig = _new_figure((11.0, 9.0))
+    axes = fig.subplots(4, 4, sharex=True)
+    for i in range(4):
+        for j in range(4):
+            ax = axes[i, j]
+            values = m00 if (i, j) == (0, 0) else norm[..., i, j]
+            name = "M00" if (i, j) == (0, 0) else f"m{i}{j}"
+            for a, t in enumerate(theta_i):
+                for c in _kept(series):
+                    ax.plot(theta_o, values[a, :, c], color=series.colours[c], linestyle=_STYLES[a % len(_STYLES)],
+                            label=f"θi = {t:g}°" + (f", {series.names[c]}" if series.lam is not None else ""),
+                            gid=f"theta_i={t:g}|channel={series.names[c]}|element=m{i}{j}")
+            ax.set_title(f"{name}" + (" [sr⁻¹]" if (i, j) == (0, 0) else " = M%d%d / M00" % (i, j)), fontsize=8)
+            ax.grid(True, alpha=0.3)
+            ax.tick_params(labelsize=7)
+            if (i, j) == (0, 0):
+                if _log_wanted(log, values):
+                    ax.set_yscale("log")
+                    _log_limits(ax, values)
+            else:
+                ax.set_ylim(-1.05, 1.05)
+            if i == 3:
+                ax.set_xlabel("θo [deg]", fontsize=7)
+    axes[0, 0].set_xlim(-90, 90)
+    axes[0, 0].set_xticks(np.arange(-90, 91, 45))
+    axes[0, 0].legend(fontsize=6)
+    fig.suptitle(title or _title(brdf, label, "Mueller matrix in the plane of incidence (x ⊥ plane, +S3 right "
+                                 "circular)" + (f", {_plane_note(brdf, phi_i_deg)}" if _plane_note(brdf, phi_i_deg)
+                                                else "")), fontsize=9)
+    return fig
+
+
 # --------------------------------------------------------------------------------------------
 # dispatch and output
 
 _FUNCTIONS = {"in-plane": in_plane, "polar": polar, "slice": slice_image, "hemisphere": hemisphere,
-              "albedo": albedo, "compare": compare}
+              "albedo": albedo, "compare": compare, "mueller": mueller}
 
 
 def figure(kind: str, brdf, **options) -> Figure:

@@ -299,8 +299,18 @@ def coherency_eigenvalues(M) -> np.ndarray:
     """The four real eigenvalues ``[..., 4]`` (ascending) of the coherency matrix of ``M``. A
     Mueller matrix is physically realizable (a convex sum of Jones–Mueller matrices) when all are
     ≥ 0 (to rounding: −ε·M00); a non-depolarizing matrix has one non-zero eigenvalue, M00. They
-    do not depend on the basis (rotations and the circular sign are unitary on H)."""
-    return np.linalg.eigvalsh(coherency_matrix(M))
+    do not depend on the basis (rotations and the circular sign are unitary on H). Computed
+    :data:`EIGEN_BLOCK` matrices at a time (a table's worth bounds its complex temporaries)."""
+    M = np.asarray(M, float)
+    flat = M.reshape(-1, 4, 4)
+    out = np.empty((flat.shape[0], 4))
+    for a in range(0, flat.shape[0], EIGEN_BLOCK):
+        out[a:a + EIGEN_BLOCK] = np.linalg.eigvalsh(coherency_matrix(flat[a:a + EIGEN_BLOCK]))
+    return out.reshape(M.shape[:-2] + (4,))
+
+
+#: Matrices per block of :func:`coherency_eigenvalues`.
+EIGEN_BLOCK = 1 << 16
 
 
 def element_ratio(M) -> np.ndarray:

@@ -3,7 +3,8 @@
 Per input: the verdict, every check with its figure, threshold, level and detail (the same
 outcomes as the text, JSON and JUnit reports), the directional-albedo curve the albedo check
 computed, in-plane curves and an equal-area hemisphere map of the BRDF (:mod:`brdftab.plot`),
-and for a failed reciprocity or energy check a map of where it fails. Images are PNGs embedded
+and for a failed reciprocity or energy check a map of where it fails; for a polarized BRDF
+its Mueller matrix in the plane of incidence (``plot --kind mueller``). Images are PNGs embedded
 as ``data:`` URIs and the page has no script and no external resource, so it opens offline
 and as a CI artifact; tests/test_report_html.py renders it in headless Chromium and checks that
 every image decodes and the console stays silent.
@@ -162,6 +163,16 @@ def _figures(entry: Entry) -> list:
                 out.append((alt, _placeholder(), f"{alt}: not drawn ({exc})"))
                 continue
             out.append((alt, _png(fig), caption + what))
+        from .mueller_table import is_polarized
+
+        if is_polarized(brdf):
+            try:
+                fig = plot.figure("mueller", brdf, theta_i_deg=[MAP_THETA_I_DEG])
+            except BrdftabError as exc:
+                out.append(("Mueller matrix", _placeholder(), f"Mueller matrix: not drawn ({exc})"))
+            else:
+                out.append(("Mueller matrix", _png(fig), "the Mueller matrix in the plane of incidence at θi = "
+                            f"{MAP_THETA_I_DEG:g}°: M00 and M_ij / M00 (x ⊥ plane, +S3 right circular){what}"))
     return out
 
 

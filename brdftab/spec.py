@@ -15,6 +15,8 @@ Layout::
     [grid]                   # see brdftab.grids.grid_from_config
     type = "merl"            # merl | rusinkiewicz | spherical
     # wavelengths_nm = [450, 550, 650]   (spectral models)
+    # polarized = true       (polarized models, phi_d_fold = "none": the Mueller matrix too;
+    #                         a .pbsdf output always holds it)
 
     [[output]]               # one table per output; path relative to this file's folder
     path = "ggx-gold.nc"
@@ -94,6 +96,9 @@ class Spec:
     raw: dict = field(default_factory=dict)
     #: For a member of a ``[sweep]`` (:mod:`brdftab.sweep`): ``{"member": index, "values": {key: value}}``.
     sweep: dict | None = None
+    #: ``[grid] polarized = true``: the tables hold the model's Mueller matrix too
+    #: (:mod:`brdftab.mueller_table`).
+    polarized: bool = False
 
     @property
     def provenance(self) -> dict:
@@ -229,10 +234,31 @@ def parse_spec(raw: dict, path: Path, sha256: str = "") -> Spec:
         check_grid(model, grid)
     except ParameterError as exc:
         raise _fail(path, f"grid.{exc.key}" if exc.key else "grid", exc.detail) from None
+    polarized = _polarized(grid_cfg, model, grid, path)
     outputs = _outputs(raw.get("output"), path)
+    _polarized_outputs(outputs, model, path)
     validation = _validation(raw.get("validation", {}), path)
     return Spec(path=path, sha256=sha256, model=model, grid=grid, wavelengths=wavelengths, outputs=outputs,
-                validation=validation, description=description, raw=raw)
+                validation=validation, description=description, raw=raw, polarized=polarized)
+
+
+def _polarized(grid_cfg, model, grid, path) -> bool:
+    """``[grid] polarized``: a bool, for a polarized model on a grid without a φd fold."""
+    if "polarized" not in grid_cfg:
+        return False
+    value = grid_cfg["polarized"]
+    if not isinstance(value, bool):
+        raise _fail(path, "grid.polarized", f"expected true or false, got {value!r}")
+    if value:
+        from .mueller_table import is_polarized
+
+        if not is_polarized(model):
+            raise _fail(path, "grid.polarized", f"the model {model.name!r} has no Mueller matrix (not polarized)")
+        fold = getattr(grid, "phi_d_fold", "none")
+        if fold != "none":
+            raise _fail(path, "grid.polarized", f"a polarized table needs phi_d_fold = 'none', not {fold!r} (a "
+                        "fold's symmetry acts on the Mueller matrix too)")
+    return value
 
 
 def build_model(table, where: str, path) -> BRDF:
@@ -344,6 +370,17 @@ def _outputs(raw, path):
             target = path.parent / target
         outs.append(Output(path=target, format=fmt.name, options=options, as_written=Path(item["path"])))
     return outs
+
+
+def _polarized_outputs(outputs, model, path) -> None:
+    """An output in a format that holds a Mueller matrix (.pbsdf) needs a polarized model."""
+    from . import formats
+    from .mueller_table import is_polarized
+
+    for i, o in enumerate(outputs):
+        if formats.FORMATS[o.format].polarized and not is_polarized(model):
+            raise _fail(path, f"output[{i}].path", f"{o.as_written} holds a Mueller matrix (format {o.format}): the "
+                        f"model {model.name!r} is not polarized")
 
 
 def _validation(raw, path):

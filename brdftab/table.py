@@ -155,6 +155,23 @@ class Table(BRDF):
         self.closers = []
         if SPECULAR_VAR in ds.data_vars:
             self._check_specular(ds, chan_dim)
+        if "mueller" in ds.data_vars:
+            from .mueller_table import check_mueller_variable
+
+            check_mueller_variable(ds, self.grid.dims, chan_dim)
+
+    @property
+    def polarized(self) -> bool:
+        """True when the table holds the Mueller matrix (variable ``mueller``, see
+        :mod:`brdftab.mueller_table`); ``brdf`` is then its M00."""
+        return "mueller" in self.ds.data_vars
+
+    def eval_mueller(self, wi, wo, wavelengths=None, basis: str = "mitsuba") -> np.ndarray:
+        """The Mueller matrix ``[..., n_channels, 4, 4]`` at ``(wi, wo)`` by interpolation (see
+        :func:`brdftab.mueller_table.eval_mueller`); only for a polarized table."""
+        from .mueller_table import eval_mueller
+
+        return eval_mueller(self, wi, wo, wavelengths, basis)
 
     def close(self) -> None:
         """Release the file a table read lazily holds open (its samples are no longer readable
@@ -617,7 +634,7 @@ class Table(BRDF):
 GHOST_AXES = ("theta_d", "theta_o", "dtheta_o", "theta_i", "theta_h")
 
 
-def _horizon_ghosts(values, above, grid, missing=None, axes=None, inplace=False):
+def _horizon_ghosts(values, above, grid, missing=None, axes=None, inplace=False, floor=0.0):
     """Values with *ghost* samples at below-horizon nodes next to the horizon, for interpolation.
 
     A below-horizon node stores 0 (f is 0 there by definition), which is not data: linear
@@ -629,7 +646,9 @@ def _horizon_ghosts(values, above, grid, missing=None, axes=None, inplace=False)
     the one before. The stored table is unchanged. Only the nodes next to the horizon are
     computed (about 1 % of a MERL grid). Returns ``(values, valid_nodes)``. ``axes``: the ghost
     axes to pass along (default :data:`GHOST_AXES`; a subset runs those passes alone).
-    ``inplace``: write the ghosts into ``values`` (float64) instead of a copy.
+    ``inplace``: write the ghosts into ``values`` (float64) instead of a copy. ``floor``: the
+    lowest ghost value, per channel when an array (the Mueller elements of a polarized table
+    other than M00 may be negative: ``-inf``).
     """
     vals = None  # copied on the first ghost
     ok = np.array(above, copy=True)
@@ -666,7 +685,7 @@ def _horizon_ghosts(values, above, grid, missing=None, axes=None, inplace=False)
                 l2 = ((xg - x1) * (xg - x3) / ((x2 - x1) * (x2 - x3)))[:, None]
                 l3 = ((xg - x1) * (xg - x2) / ((x3 - x1) * (x3 - x2)))[:, None]
                 quad = l1 * v1 + l2 * v2 + l3 * v3
-            vals[where] = np.maximum(np.where(has3[:, None], quad, lin), 0.0)
+            vals[where] = np.maximum(np.where(has3[:, None], quad, lin), floor)
             ok[where] = True
     return (values if vals is None else vals), ok
 
@@ -1297,8 +1316,11 @@ def _interp_last(out, stored, lam):
 
 
 def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk_size: int = DEFAULT_CHUNK,
-             progress: bool | None = None, provenance: dict | None = None) -> Table:
+             progress: bool | None = None, provenance: dict | None = None, polarized: bool = False) -> Table:
     """Sample ``brdf`` on ``grid`` (and ``wavelengths`` [nm] if spectral) into a :class:`Table`.
+
+    ``polarized``: tabulate the Mueller matrix of a polarized model too (variable ``mueller``,
+    :mod:`brdftab.mueller_table`); ``brdf`` then holds its M00.
 
     Works over the flattened grid in chunks of ``chunk_size`` samples, so memory beyond the
     output array stays bounded. ``progress``: True/False, or None for a bar on a terminal
@@ -1318,6 +1340,22 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
         raise ParameterError("wavelengths", "a table's wavelengths must increase strictly")
     n = brdf.layout.n_out(lam)
     dtype = _checked_dtype(dtype)
+    if polarized:
+        from .mueller_table import mueller_at_nodes, require_polarized
+
+        require_polarized(brdf)
+        _check_polarized_grid(grid)
+        _check_memory(grid, 17 * n, dtype)
+        mueller = np.empty(grid.shape + (n, 4, 4), dtype=dtype)
+        bar = _progress(grid.size, progress)
+        try:
+            mueller_at_nodes(brdf, grid, lam, mueller, chunk=max(1, chunk_size // 16), bar=bar)
+        finally:
+            if bar is not None:
+                bar.close()
+        values = np.ascontiguousarray(mueller[..., 0, 0])
+        return make_table(values, grid, brdf.layout if lam is None else Layout(None, lam), brdf=brdf,
+                          provenance=provenance, specular=_specular_samples(brdf, lam), mueller=mueller)
     _check_memory(grid, n, dtype)
     values = np.empty(grid.shape + (n,), dtype=dtype)
     bar = _progress(grid.size, progress)
@@ -1328,6 +1366,15 @@ def tabulate(brdf: BRDF, grid: Grid, wavelengths=None, *, dtype="float64", chunk
             bar.close()
     return make_table(values, grid, brdf.layout if lam is None else Layout(None, lam), brdf=brdf,
                       provenance=provenance, specular=_specular_samples(brdf, lam))
+
+
+def _check_polarized_grid(grid) -> None:
+    """A polarized table needs a grid without a symmetry fold: a fold's symmetry acts on the
+    Mueller matrix too (reciprocity transposes it, a mirror flips the signs of S2 and S3)."""
+    fold = getattr(grid, "phi_d_fold", "none")
+    if fold != "none":
+        raise ParameterError("polarized", f"a polarized table needs a grid without a symmetry fold (phi_d_fold = "
+                             f"'none'), not phi_d_fold = {fold!r}: the fold's symmetry acts on the Mueller matrix too")
 
 
 def _checked_dtype(dtype):
@@ -1469,10 +1516,12 @@ def warn_specular_dropped(brdf, where: str) -> None:
 
 
 def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, provenance: dict | None = None,
-               specular=None) -> Table:
+               specular=None, mueller=None) -> Table:
     """Wrap sampled ``values[grid..., C]`` into a :class:`Table` with full metadata.
 
-    ``specular = (theta_i [rad], rho[θi, C])`` adds the ideal specular reflectance variable."""
+    ``specular = (theta_i [rad], rho[θi, C])`` adds the ideal specular reflectance variable;
+    ``mueller[grid..., C, 4, 4]`` the Mueller matrix (:mod:`brdftab.mueller_table`; ``values``
+    should be its M00)."""
     coords = {}
     for ax in grid.axes:
         coords[ax.name] = xr.Variable((ax.name,), ax.values, attrs=grid.coord_attrs(ax.name))
@@ -1522,6 +1571,13 @@ def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, pro
             "quantity": "fraction of the incident flux reflected into the mirror direction by the source's "
                         "delta component; not contained in brdf, add it to directional albedos",
             "interpolation": "linear in the incidence angle"})
+    if mueller is not None:
+        from .mueller_table import BASIS_ATTR, MITSUBA_BASIS, MUELLER_VAR, mueller_coords, mueller_variable
+
+        coords.update(mueller_coords())
+        data[MUELLER_VAR] = mueller_variable(mueller, grid, chan_dim)
+        attrs["polarized"] = 1
+        attrs[BASIS_ATTR] = MITSUBA_BASIS
     ds = xr.Dataset(data, coords=coords, attrs=attrs)
     return Table(ds)
 

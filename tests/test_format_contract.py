@@ -38,6 +38,13 @@ def source():
                                            k=[3.9, 2.4, 1.6])])
 
 
+def polarized_source():
+    """A spectral, polarized BRDF (five wavelengths) for the formats that hold a Mueller matrix."""
+    from _polarized import GGXConductor
+
+    return GGXConductor(0.3)
+
+
 def pairs(n=300, seed=0):
     rng = np.random.default_rng(seed)
     mu = rng.uniform(np.cos(np.radians(80.0)), 1.0, (2, n))
@@ -59,7 +66,7 @@ def check_format_contract(fmt, folder: Path):
     """Assert the contract on ``fmt`` (AssertionError naming the broken clause)."""
     ext = fmt.extensions[0]
     path = folder / f"contract{ext}"
-    payload = brdftab.save(source(), path, grid=SMALL, format=fmt.name)
+    payload = brdftab.save(polarized_source() if fmt.polarized else source(), path, grid=SMALL, format=fmt.name)
     assert path.exists(), f"{fmt.name}: nothing written"
     # recognised by extension, and by content under a foreign name
     assert formats.format_for(path).name == fmt.name or any(

@@ -45,6 +45,9 @@ def _rusi(body: str) -> str:
     return '[grid]\ntype = "rusinkiewicz"\n' + body
 
 
+#: A model without a Mueller matrix (Schlick's Fresnel has no polarized form).
+_UNPOLARIZED = _microfacet('alpha = 0.3\nfresnel = "schlick"\nf0 = 0.9\n')
+
 # id -> (spec text or bytes, substrings the one error line must contain)
 CASES = {
     # unknown keys and names
@@ -65,7 +68,7 @@ CASES = {
                         ["model.fresnel: unknown fresnel 'conductr' (did you mean 'conductor'?); valid: none, "]),
     "unknown-output-format": (_spec_text(output='[[output]]\npath = "out.nc"\nformat = "netcdff"\n'),
                               ["output[0].format: unknown format 'netcdff' (did you mean 'netcdf'?); valid: netcdf, "
-                               "zarr, merl, rgl, exr, zemax, lighttools"]),
+                               "zarr, merl, pbsdf, rgl, exr, zemax, lighttools"]),
     "unknown-grid-type-wording": (_spec_text(grid='[grid]\ntype = "rusinkiewiz"\n'),
                                   ["grid.type: unknown grid type 'rusinkiewiz' (did you mean 'rusinkiewicz'?); valid: "]),
     # channel layouts that do not combine: the error names the parameter or term, not "terms"
@@ -125,8 +128,8 @@ CASES = {
     # [[output]]
     "unknown-output-extension": (
         _spec_text(output='[[output]]\npath = "out.xyz"\n'),
-        ["output[0].path", ".xyz", "(known: .nc, .nc4, .netcdf, .zarr, .binary, .bsdf, .exr, .mbsdf, .anisotropicbsdf, "
-         ".brdf, .xml)"],
+        ["output[0].path", ".xyz", "(known: .nc, .nc4, .netcdf, .zarr, .binary, .pbsdf, .bsdf, .exr, .mbsdf, "
+         ".anisotropicbsdf, .brdf, .xml)"],
     ),
     "unknown-output-option": (
         _spec_text(output='[[output]]\npath = "out.nc"\ncompression = 4\n'),
@@ -205,12 +208,20 @@ CASES = {
                                      "k = {wavelengths_nm = [300, 800], values = [2.0, 2.0]}\n"),
                    grid=_rusi("n_theta_h = 2\nn_theta_d = 2\nn_phi_d = 2\nwavelengths_nm = [350, 750]\n")),
         ["grid.wavelengths_nm", "[400, 700]"]),
+    # [grid] polarized: a bool, for a polarized model, on a grid without a φd fold
+    "polarized-not-a-bool": (_spec_text(grid=_rusi('phi_d_fold = "none"\npolarized = "yes"\n')),
+                             ["grid.polarized", "expected true or false"]),
+    "polarized-unpolarized-model": (_spec_text(model=_UNPOLARIZED, grid=_rusi('phi_d_fold = "none"\npolarized = true\n')),
+                                    ["grid.polarized", "the model 'microfacet' has no Mueller matrix"]),
+    "pbsdf-of-an-unpolarized-model": (_spec_text(model=_UNPOLARIZED, output='[[output]]\npath = "out.pbsdf"\n'),
+                                      ["output[0].path", "out.pbsdf", "the model 'microfacet' is not polarized"]),
 }
 
 #: Cases also run as a real subprocess (one line on stderr, no traceback).
 SUBPROCESS_CASES = ["unknown-top-level-key", "unknown-model-name", "alpha-string", "theta-h-deg-out-of-range",
                     "invalid-toml", "not-utf8", "missing-output", "grid-type-list", "alpha-huge-int",
-                    "range-tiny-step", "axis-too-many-nodes", "n-theta-h-huge-int", "angle-key-huge-int"]
+                    "range-tiny-step", "axis-too-many-nodes", "n-theta-h-huge-int", "angle-key-huge-int",
+                    "pbsdf-of-an-unpolarized-model"]
 
 
 def _write_spec(tmp_path: Path, case_id: str) -> Path:

@@ -20,7 +20,8 @@ Checks share what they compute — the albedo curve, the sampled direction pairs
 :class:`Context` they are given, so the energy and albedo checks integrate once.
 
 Families (modules): ``samples`` (finite, non-negative, missing), ``reciprocity``, ``energy``
-(energy, albedo), ``symmetry`` (isotropy, bilateral), ``conventions``, ``tabulation``.
+(energy, albedo), ``symmetry`` (isotropy, bilateral), ``conventions``, ``tabulation``, ``mueller``
+(polarized BRDFs: realizability, bounds, polarized reciprocity, depolarization, M00 albedo).
 """
 
 from __future__ import annotations
@@ -505,7 +506,7 @@ def unstorable_report(exc, config=None, *, allow_invalid: bool = False, what: st
 
 
 #: Check modules shipped with brdftab (each registers its checks on import).
-BUILTIN = ("samples", "reciprocity", "energy", "symmetry", "conventions", "tabulation")
+BUILTIN = ("samples", "reciprocity", "energy", "symmetry", "conventions", "tabulation", "mueller")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")

@@ -119,6 +119,9 @@ class FileFormat:
     #: ``store(folder) -> bool`` for a format written as a folder (a directory store): True
     #: when an existing folder is one of its stores. None: the format is a file.
     store: Callable | None = None
+    #: True for a format that stores a Mueller matrix (Mitsuba's ``.pbsdf``): it writes only
+    #: polarized BRDFs (:func:`brdftab.mueller_table.is_polarized`).
+    polarized: bool = False
 
     @property
     def options(self) -> dict:
@@ -291,7 +294,12 @@ def _default_prepare(brdf, grid, **options):
         return brdf
     if grid is None:
         raise BrdftabError(f"a grid is needed to write {brdf.name!r} (pass grid=...)")
-    return tabulate(brdf, grid)
+    polarized = isinstance(brdf, Table) and brdf.polarized
+    if polarized and getattr(grid, "phi_d_fold", "none") != "none":
+        warnings.warn(f"{brdf.describe()} holds a Mueller matrix; {grid.describe()} folds phi_d, so only f_r "
+                      "(its M00) is written", BrdftabWarning, stacklevel=4)
+        polarized = False
+    return tabulate(brdf, grid, polarized=polarized)  # a polarized table resampled stays polarized
 
 
 def prepare(fmt: FileFormat, brdf, grid, options: dict | None = None):
@@ -367,6 +375,10 @@ def cast_samples(table, dtype):
     if not np.array_equal(back, v, equal_nan=True):
         ds = table.ds.copy(deep=False)
         ds["brdf"] = var.copy(data=back)
+        if "mueller" in ds.data_vars:  # a polarized table's Mueller matrix is stored like its M00
+            m = ds["mueller"]
+            with np.errstate(over="ignore", invalid="ignore"):
+                ds["mueller"] = m.copy(data=np.asarray(m.values).astype(dtype).astype(v.dtype))
         out = Table(ds)
         out.origin = table.origin
         out.stored_dtype = dtype.name  # the checks say the values are judged as stored
@@ -437,7 +449,9 @@ def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, o
 
 #: Format modules shipped with brdftab (each registers itself on import). A module whose
 #: optional library is missing must still import: it imports that library inside functions.
-BUILTIN = ("netcdf", "zarr", "merl", "rgl", "exr", "zemax", "lighttools", "mbsdf", "speos", "radiance")
+#: Content detection tries them in this order: pbsdf (a tensor file with Mueller fields)
+#: before rgl (any other tensor file).
+BUILTIN = ("netcdf", "zarr", "merl", "pbsdf", "rgl", "exr", "zemax", "lighttools", "mbsdf", "speos", "radiance")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")

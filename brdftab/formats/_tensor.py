@@ -30,7 +30,7 @@ import numpy as np
 from ..errors import FormatError
 
 __all__ = ["MAGIC", "VERSION", "DTYPE_CODES", "read_tensor_file", "parse_tensor", "write_tensor_file",
-           "encode_tensor"]
+           "encode_tensor", "tensor_header"]
 
 MAGIC = b"tensor_file\0"
 VERSION = (1, 0)
@@ -55,6 +55,34 @@ def _as_array(name, value) -> np.ndarray:
     return np.ascontiguousarray(arr, dtype=arr.dtype.newbyteorder("<"))
 
 
+def tensor_header(layout: dict) -> tuple:
+    """``(header bytes, {name: data offset})`` of a tensor file whose fields are ``layout``
+    (name -> ``(numpy dtype, shape)``), in order: the field table, each field's data to start at
+    its offset (8-byte aligned, after the table and the fields before it). Lets a writer stream
+    a large field's data after the header."""
+    for name in layout:
+        if not isinstance(name, str) or not name or len(name.encode("utf-8")) > 0xFFFF:
+            raise FormatError(f"tensor field name {name!r} is not a non-empty string of at most 65535 bytes")
+    table_size = HEADER + sum(13 + len(k.encode("utf-8")) + 8 * len(shape) for k, (_, shape) in layout.items())
+    offsets, pos = {}, table_size
+    for k, (dtype, shape) in layout.items():
+        pos = -(-pos // ALIGN) * ALIGN
+        offsets[k] = pos
+        n = 1
+        for s in shape:
+            n *= int(s)
+        pos += n * np.dtype(dtype).itemsize
+    out = bytearray(MAGIC + struct.pack("<BBI", *VERSION, len(layout)))
+    for k, (dtype, shape) in layout.items():
+        dt = np.dtype(dtype)
+        key = k.encode("utf-8")
+        out += struct.pack("<H", len(key)) + key
+        out += struct.pack("<HBQ", len(shape), _CODE_OF[(dt.kind, dt.itemsize)], offsets[k])
+        out += struct.pack(f"<{len(shape)}Q", *shape)
+    assert len(out) == table_size
+    return bytes(out), offsets
+
+
 def encode_tensor(fields: dict) -> bytes:
     """The bytes of a tensor file holding ``fields`` (name -> array, str or bytes), in order."""
     arrays = {}
@@ -62,19 +90,8 @@ def encode_tensor(fields: dict) -> bytes:
         if not isinstance(name, str) or not name or len(name.encode("utf-8")) > 0xFFFF:
             raise FormatError(f"tensor field name {name!r} is not a non-empty string of at most 65535 bytes")
         arrays[name] = _as_array(name, value)
-    table_size = HEADER + sum(13 + len(k.encode("utf-8")) + 8 * a.ndim for k, a in arrays.items())
-    offsets, pos = {}, table_size
-    for k, a in arrays.items():
-        pos = -(-pos // ALIGN) * ALIGN
-        offsets[k] = pos
-        pos += a.nbytes
-    out = bytearray(MAGIC + struct.pack("<BBI", *VERSION, len(arrays)))
-    for k, a in arrays.items():
-        key = k.encode("utf-8")
-        out += struct.pack("<H", len(key)) + key
-        out += struct.pack("<HBQ", a.ndim, _CODE_OF[(a.dtype.kind, a.dtype.itemsize)], offsets[k])
-        out += struct.pack(f"<{a.ndim}Q", *a.shape)
-    assert len(out) == table_size
+    header, offsets = tensor_header({k: (a.dtype, a.shape) for k, a in arrays.items()})
+    out = bytearray(header)
     for k, a in arrays.items():
         out += b"\0" * (offsets[k] - len(out))
         out += a.tobytes()

@@ -206,6 +206,8 @@ class NetcdfStream:
             if name != "brdf":
                 encoding[name] = {**encoding.get(name, {}), "zlib": complevel > 0, "complevel": complevel,
                                   "_FillValue": None}
+        if "mueller" in ds.data_vars:  # a polarized table's Mueller matrix: stored like the samples (M00 = brdf)
+            encoding["mueller"]["dtype"] = np.dtype(dtype)
         rest = ds.drop_vars("brdf")  # (brdf's data, a placeholder in a streamed template, is never read)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # xarray's note on coordinates no remaining variable uses: brdf will

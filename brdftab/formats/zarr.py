@@ -281,6 +281,8 @@ class ZarrWriter:
             enc = {"compressors": codecs}
             if rest[name].dtype.kind == "f":
                 enc["_FillValue"] = None
+            if name == "mueller":  # a polarized table's Mueller matrix: stored like the samples (M00 = brdf)
+                enc["dtype"] = self.dtype
             encoding[name] = enc
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # xarray's note on coordinates no remaining variable uses: brdf will

@@ -70,6 +70,9 @@ COMMON_PARAMS = (
     Param("wavelengths_nm", "wavelengths", "Wavelengths to sample a spectral model at [nm]: a list of numbers "
           "and/or ranges {start, stop, step|num}.", units="nm",
           default=None, used_when="spectral models"),
+    Param("polarized", "bool", "Tabulate the Mueller matrix of a polarized model too (variable mueller over "
+          "mueller_row, mueller_col; needs phi_d_fold = 'none'). A .pbsdf output always holds it.", default=False,
+          used_when="polarized models"),
 )
 
 
@@ -244,8 +247,8 @@ def _parse_keys(cls, cfg: dict) -> dict:
             valid = ["type", *by_key]
             raise ParameterError(key, f"unknown key for a '{cls.type_name}' grid{suggest(key, valid)}; valid: "
                                  f"{', '.join(sorted(valid))}")
-        if p.name == "wavelengths_nm":
-            continue  # read by the spec loader (the spectral axis)
+        if p.name in ("wavelengths_nm", "polarized"):
+            continue  # read by the spec loader (the spectral axis, the Mueller matrix)
         try:
             values[p.name] = p.convert(raw)
         except ParameterError as exc:
