@@ -437,7 +437,7 @@ def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, o
 
 #: Format modules shipped with brdftab (each registers itself on import). A module whose
 #: optional library is missing must still import: it imports that library inside functions.
-BUILTIN = ("netcdf", "zarr", "merl", "rgl", "exr", "zemax", "mbsdf")
+BUILTIN = ("netcdf", "zarr", "merl", "rgl", "exr", "zemax", "mbsdf", "astm", "csv")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")

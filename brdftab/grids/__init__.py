@@ -14,6 +14,8 @@ keys declared as :class:`~brdftab.params.Param`:
     gonio axes ``theta_i, phi_i, theta_o, phi_o`` (or offsets from the mirror direction).
 ``specular-polar`` (:mod:`.specular_polar`)
     ``theta_i, phi_i, spec_azimuth, spec_radial``: polar angles about the mirror direction (Zemax .bsdf).
+``scattered`` (:mod:`.scattered`)
+    ``sample``: scattered direction pairs (ASTM, CSV), interpolated on their Delaunay triangulation.
 
 Axes, the φd folds and angle lists live in :mod:`.axis`.
 """
@@ -28,8 +30,9 @@ from .merl import merl_grid
 from .rusinkiewicz import RusinkiewiczGrid
 from .spherical import SphericalGrid
 from .specular_polar import SpecularPolarGrid
+from .scattered import ScatteredGrid
 
-__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "merl_grid",
+__all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "ScatteredGrid", "merl_grid",
            "grid_from_config", "grid_from_dataset", "grid_wavelengths", "check_grid", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS",
            "COMMON_PARAMS", "register"]
 
