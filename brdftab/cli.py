@@ -287,7 +287,8 @@ def tabulate(ctx, specs, out_dir, overwrite, allow_invalid, levels, settings, pr
 #: a copy of :func:`brdftab.formats.usable` kept here so that ``--help`` does not import the
 #: format modules (xarray, netCDF4, the models); a test holds it equal to the registry.
 USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("zarr", (".zarr",)), ("merl", (".binary",)),
-                  ("rgl", (".bsdf",)), ("exr", (".exr",)), ("zemax", (".bsdf",)), ("mbsdf", (".mbsdf",)))
+                  ("rgl", (".bsdf",)), ("exr", (".exr",)), ("zemax", (".bsdf",)), ("mbsdf", (".mbsdf",)),
+                  ("astm", (".astm",)), ("csv", (".csv",)))
 
 
 def _format_names() -> str:
@@ -386,6 +387,11 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
         click.echo("copied: same grid as the input" + (", in colour" if colour else ", values unchanged"))
         return
     click.echo(f"resampled: {result.source_grid or 'the input'} -> {grid_text_out}")
+    x = result.extrapolated
+    if x:
+        click.echo(f"extrapolated: {x['outside']} of {x['nodes']} nodes ({100 * x['fraction']:.3g} %) lie outside the "
+                   f"hull of the input's scattered samples and take their nearest sample's value (up to "
+                   f"{x['max_distance']:.3g} away)")
     d = result.difference
     if d is not None:
         click.echo(f"resampling error of f cosθi cosθo: rms relative {d.rms_rel:.3g}, max relative {d.max_rel:.3g} "

@@ -406,7 +406,7 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
 
     requested = grid if grid is not None else (brdf.grid if isinstance(brdf, Table) else None)
     target = target_grid(fmt, requested, options)
-    if grid is not None and (target is None or not target.equals(grid)):
+    if grid is not None and (target is None or not (target.equals(grid) or getattr(target, "made_from", None) is grid)):
         stored = f"its own grid, {target.describe()}" if target is not None else "its own sampling"
         warnings.warn(f"{path}: the {fmt.name} format stores {stored}; the grid given ({grid.describe()}) is not used",
                       BrdftabWarning, stacklevel=3)

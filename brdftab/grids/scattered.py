@@ -47,6 +47,10 @@ from .base import Grid, register
 __all__ = ["ScatteredGrid", "ScatteredInterpolant", "ANGLES", "pair_space"]
 
 FOLDS = ("none", "bilateral")
+#: Under the bilateral fold, an outgoing direction this close to the plane of incidence (in
+#: projected coordinates) lies on it: text files round their radians (Cornell's to 1e-6, so
+#: φs = 3.141593 stands for π).
+PLANE = 1e-6
 #: The coordinate variables of a scattered table, one value per sample.
 ANGLES = ("theta_i", "phi_i", "theta_o", "phi_o")
 #: A coordinate whose samples all lie within this of one value is left out of the triangulation.
@@ -70,7 +74,9 @@ def pair_space(wi, wo, isotropic: bool, bilateral: bool = False) -> np.ndarray:
     safe = np.where(s > 0, s, 1.0)
     c, n = np.where(s > 0, wi[:, 0] / safe, 1.0), np.where(s > 0, wi[:, 1] / safe, 0.0)
     y = -n * wo[:, 0] + c * wo[:, 1]
-    return np.stack([s, c * wo[:, 0] + n * wo[:, 1], np.abs(y) if bilateral else y], axis=1)
+    if bilateral:  # mirrored onto y >= 0; within PLANE of the plane of incidence is on it
+        y = np.where(np.abs(y) <= PLANE, 0.0, np.abs(y))
+    return np.stack([s, c * wo[:, 0] + n * wo[:, 1], y], axis=1)
 
 
 def _space_to_pairs(p, isotropic: bool):
@@ -126,10 +132,13 @@ class ScatteredInterpolant:
             self.line = (pts[order, 0], values[order])
         elif self.free.size >= 2:
             from scipy.interpolate import LinearNDInterpolator
-            from scipy.spatial import Delaunay, QhullError
+            from scipy.spatial import ConvexHull, Delaunay, QhullError
 
             try:
                 self.interp = LinearNDInterpolator(Delaunay(pts), values)
+                # the hull's facet planes: queries outside are found without a search of the
+                # triangulation (scipy falls back to trying every simplex for them)
+                self.hull = ConvexHull(pts).equations
             except (QhullError, ValueError) as exc:
                 raise ParameterError("samples", f"the {len(points)} samples cannot be triangulated: they span fewer "
                                      f"dimensions than their {self.free.size} varying coordinates "
@@ -155,7 +164,9 @@ class ScatteredInterpolant:
             return out
         ok = np.all(np.abs(q[:, self.flat] - self.flat_at) <= ON_FLAT, axis=1)
         if self.interp is not None:
+            a, b = self.hull[:, :-1], self.hull[:, -1]
             rows = np.flatnonzero(ok)
+            rows = rows[np.all(q[rows][:, self.free] @ a.T + b <= ON_FLAT, axis=1)]
             if rows.size:
                 out[rows] = self.interp(q[rows][:, self.free])
         elif self.line is not None:
@@ -313,7 +324,9 @@ class ScatteredGrid(Grid):
         a = np.stack([ti, pi_, to, po], axis=1)[good]
         _, first = np.unique(np.round(a, 12), axis=0, return_index=True)
         a = a[np.sort(first)]
-        return cls(*a.T)
+        out = cls(*a.T)
+        out.made_from = grid  # (the grid a writer was given: its nodes are the samples)
+        return out
 
     # -- shape and directions ----------------------------------------------------------------
     def _directions(self, idx):
