@@ -125,7 +125,7 @@ CASES = {
     # [[output]]
     "unknown-output-extension": (
         _spec_text(output='[[output]]\npath = "out.xyz"\n'),
-        ["output[0].path", ".xyz", "(known: .nc, .nc4, .netcdf, .zarr, .binary, .bsdf, .exr, .mbsdf)"],
+        ["output[0].path", ".xyz", "(known: .nc, .nc4, .netcdf, .zarr, .binary, .bsdf, .exr, .mbsdf, .astm, .csv)"],
     ),
     "unknown-output-option": (
         _spec_text(output='[[output]]\npath = "out.nc"\ncompression = 4\n'),

@@ -12,6 +12,10 @@ The angles are the spherical angles of the away-pointing directions, as in brdft
 direction of (θi, φi) is (θi, φi + π) (Cornell's files have φi = 0 and their specular peak at
 φs = π).
 
+The writer adds the header line ``ISOTROPIC 1`` (or ``0``), which the reader honours: whether
+the samples are interpolated as an isotropic surface's (without it, a file whose samples share
+one incident azimuth is read as isotropic).
+
 Quantity: ``MEAS_NAME BRDF`` (and a file without MEAS_NAME) holds f_r in sr⁻¹, read as it is;
 ``CCBRDF`` (cosine-corrected BRDF, f_r cosθs) is divided by cosθs; ``BRF`` (reflectance
 factor, π f_r) is divided by π. The table records which (``source_quantity``). Readers set
@@ -170,19 +174,23 @@ def read_astm(path):
     elif factor == "pi":
         values = values / math.pi
     single_phi = np.ptp(ang[:, 1]) == 0.0
+    declared = keys.get("ISOTROPIC", "").strip()
+    if declared not in ("", "0", "1"):
+        raise FormatError(f"{path}: ISOTROPIC {declared!r}: expected 0 or 1")
+    isotropic = single_phi if not declared else declared == "1"
     provenance = {
         "title": f"ASTM E1392 gonioreflectometer data {path.name}",
         "model": "unknown",
         "material": keys.get("SAMPLE_NAME", path.stem),
         "parameters": "{}",
-        "isotropic": int(single_phi),
+        "isotropic": int(isotropic),
         "origin": "measured",
         "source_file": path.name,
         "source_format": "astm",
         "source_quantity": text_q if "MEAS_NAME" in keys else text_q + " (no MEAS_NAME: BRDF assumed)",
         HEADER_ATTR: "\n".join(l for l in header if not l.strip().upper().startswith("NUM_POINTS")).strip("\n"),
     }
-    if single_phi:
+    if single_phi and not declared:
         provenance["isotropy"] = ("assumed: the file measures one incident azimuth; other azimuths are answered by "
                                   "rotation about the normal")
     return _table(ang, values, layout, provenance)
@@ -272,7 +280,7 @@ def write_astm(table, path, **_):
     header = str(attrs.get(HEADER_ATTR, "")).strip("\n")
     if header:
         # the source's header lines; MEAS_NAME says what is written now: f_r (converted on read)
-        kept = [l for l in header.splitlines() if l.strip().upper().split(" ")[0] != "MEAS_NAME"]
+        kept = [l for l in header.splitlines() if l.strip().upper().split(" ")[0] not in ("MEAS_NAME", "ISOTROPIC")]
         head = kept + ["MEAS_NAME BRDF"]
     else:
         head = [f"SOURCE brdftab {__version__}", f"SAMPLE_NAME {_one_line(attrs.get('material', table.name))}",
@@ -280,6 +288,7 @@ def write_astm(table, path, **_):
         params = str(attrs.get("parameters", ""))
         if params and params != "{}":
             head.append(f"LAB_COMMENTS {_one_line(params)}")
+    head.append(f"ISOTROPIC {int(table.isotropic)}")  # (a brdftab key: how the samples interpolate)
     values = np.asarray(table.values, float)
     miss = table.missing
     if miss is not None:

@@ -18,7 +18,8 @@ every channel or wavelength the file names, and no more. brdftab holds the sampl
 :class:`~brdftab.grids.ScatteredGrid` and interpolates them as every scattered table
 (:mod:`brdftab.grids.scattered`). Read files get ``origin = "measured"`` unless a comment line
 ``# origin: analytic`` (which brdftab writes for tables of models) says otherwise; a file whose
-samples share one incident azimuth is declared isotropic.
+samples share one incident azimuth is declared isotropic unless a comment ``# isotropic: 0``
+says otherwise (brdftab writes ``# isotropic: 0|1``: how the samples interpolate).
 
 The writer writes degrees and f_r, every number as the shortest text that reads back as the
 same float64 (the values are exact; an angle read back differs from the table's radians by at
@@ -170,17 +171,20 @@ def read_csv(path):
     elif conv == "pi":
         out = out / math.pi
     origin = "measured"
+    isotropic = np.ptp(ang[:, 1]) == 0.0  # one incident azimuth: read as an isotropic surface's
     for cm in comments:
         m = re.fullmatch(r"origin\s*:\s*(\w+)", cm)
         if m and m.group(1) in ("analytic", "measured", "unknown"):
             origin = m.group(1)
-    single_phi = np.ptp(ang[:, 1]) == 0.0
+        m = re.fullmatch(r"isotropic\s*:\s*([01])", cm)
+        if m:
+            isotropic = m.group(1) == "1"
     provenance = {
         "title": f"scattered BRDF samples {path.name}",
         "model": "unknown",
         "material": path.stem,
         "parameters": "{}",
-        "isotropic": int(single_phi),
+        "isotropic": int(isotropic),
         "origin": origin,
         "source_file": path.name,
         "source_format": "csv",
@@ -218,7 +222,7 @@ def write_csv(table, path, **_):
     with open(path, "w", encoding="utf-8", newline="\n") as fh:
         fh.write(f"# brdftab {__version__}: f_r [sr-1] of {' '.join(str(attrs.get('model', table.name)).split())} at "
                  f"{grid.size} scattered direction pairs (degrees; directions point away from the surface)\n")
-        fh.write(f"# origin: {table.origin}\n")
+        fh.write(f"# origin: {table.origin}\n# isotropic: {int(table.isotropic)}\n")
         fh.write(f"theta_i_deg,phi_i_deg,theta_o_deg,phi_o_deg,{col},f_r\n")
         for a, v in zip(deg, values):
             head = ",".join(_number(x) for x in a)

@@ -14,9 +14,13 @@ evaluates exactly as the file it came from.
   the x–z plane (φi → 0), and the point is (sin θi, ωo'x, ωo'y) — three coordinates;
 * anisotropic tables: (ωi x, ωi y, ωo x, ωo y) — four.
 
-The samples are triangulated (Delaunay, :class:`scipy.spatial.Delaunay` through
-:class:`scipy.interpolate.LinearNDInterpolator`), and a query inside the triangulation's hull
-takes the barycentric (linear) combination of the samples at the corners of its simplex. A
+The samples are triangulated (Delaunay, :class:`scipy.spatial.Delaunay`), and a query inside
+the triangulation's hull takes the barycentric (linear) combination of the samples at the
+corners of its simplex (scipy's ``find_simplex`` and affine ``transform``, as
+:class:`scipy.interpolate.LinearNDInterpolator` does it). Samples in incidence layers (a few
+θi shared by many samples, as gonioreflectometers measure) are triangulated layer by layer in
+the outgoing coordinates and interpolated linearly in sin θi between the two layers around a
+query. A
 coordinate that is the same for every sample (one incidence angle, a principal-plane scan) is
 left out of the triangulation, and a query with another value of it is outside. At a sample the
 interpolation returns the stored value exactly. Samples with a missing channel (NaN, or outside
@@ -94,6 +98,24 @@ def _space_to_pairs(p, isotropic: bool):
     return wi, wo
 
 
+def _set_transforms(tri) -> None:
+    """Give ``tri`` its barycentric transforms (:attr:`scipy.spatial.Delaunay.transform`: per
+    simplex the inverse of [p_j − p_d] and the vertex p_d; NaN for a degenerate simplex), computed
+    here in one batched inverse: scipy computes them simplex by simplex through LAPACK, which
+    takes seconds for a few thousand simplices when the BLAS threads compete for the cores."""
+    p = tri.points[tri.simplices]                        # [m, d + 1, d]
+    d = p.shape[2]
+    m = np.swapaxes(p[:, :d, :] - p[:, d:, :], 1, 2)      # columns p_j − p_d
+    scale = np.abs(m).max(axis=(1, 2))
+    det = np.linalg.det(m)
+    good = np.abs(det) > 1e3 * np.finfo(float).eps * np.maximum(scale, 1e-300) ** d
+    out = np.full((p.shape[0], d + 1, d), np.nan)
+    out[good, :d, :] = np.linalg.inv(m[good])
+    out[:, d, :] = p[:, d, :]
+    if getattr(tri, "_transform", "absent") is None:  # scipy's lazily computed cache
+        tri._transform = out
+
+
 class ScatteredInterpolant:
     """Linear interpolation of sample points ``[N, d]`` holding ``values[N, C]`` (see the module
     docstring): ``(values [M, C], outside [M], distance [M])`` of query points, the values of
@@ -117,7 +139,7 @@ class ScatteredInterpolant:
         self.flat_at = lo[self.flat]
         self.free = np.flatnonzero(hi - lo > FLAT)
         self.layers = None
-        self.interp = None
+        self.tri = None
         self.line = None
         u = np.round(points[:, 0], 12)
         levels = np.unique(u)
@@ -131,11 +153,11 @@ class ScatteredInterpolant:
             order = np.argsort(pts[:, 0], kind="stable")
             self.line = (pts[order, 0], values[order])
         elif self.free.size >= 2:
-            from scipy.interpolate import LinearNDInterpolator
             from scipy.spatial import ConvexHull, Delaunay, QhullError
 
             try:
-                self.interp = LinearNDInterpolator(Delaunay(pts), values)
+                self.tri = Delaunay(pts)
+                _set_transforms(self.tri)
                 # the hull's facet planes: queries outside are found without a search of the
                 # triangulation (scipy falls back to trying every simplex for them)
                 self.hull = ConvexHull(pts).equations
@@ -163,12 +185,23 @@ class ScatteredInterpolant:
                 out[rows] = (1 - tt) * lo + tt * hi  # NaN where a needed layer is outside
             return out
         ok = np.all(np.abs(q[:, self.flat] - self.flat_at) <= ON_FLAT, axis=1)
-        if self.interp is not None:
+        if self.tri is not None:
             a, b = self.hull[:, :-1], self.hull[:, -1]
             rows = np.flatnonzero(ok)
-            rows = rows[np.all(q[rows][:, self.free] @ a.T + b <= ON_FLAT, axis=1)]
+            x = q[rows][:, self.free]
+            near = np.all(x @ a.T + b <= ON_FLAT, axis=1)
+            rows, x = rows[near], x[near]
+            # the simplex of each query and its barycentric coordinates (scipy's affine
+            # transforms, Delaunay.transform): the weights of the simplex's samples
+            simplex = self.tri.find_simplex(x)
+            found = simplex >= 0
+            rows, x, simplex = rows[found], x[found], simplex[found]
             if rows.size:
-                out[rows] = self.interp(q[rows][:, self.free])
+                d = x.shape[1]
+                t = self.tri.transform[simplex]
+                bary = np.einsum("mij,mj->mi", t[:, :d, :], x - t[:, d, :])
+                w = np.concatenate([bary, 1.0 - bary.sum(axis=1, keepdims=True)], axis=1)
+                out[rows] = np.einsum("mk,mkc->mc", w, self.values[self.tri.simplices[simplex]])
         elif self.line is not None:
             x, v = self.line
             xq = q[:, self.free[0]]
@@ -208,12 +241,12 @@ class ScatteredInterpolant:
                 out[rows, 1:] = subs[j].centres(rng, rows.size)
             return out
         pts = self.tree.data
-        if self.interp is None:
+        if self.tri is None:
             return pts[rng.integers(0, pts.shape[0], n)]
-        simplices = self.interp.tri.simplices
+        simplices = self.tri.simplices
         pick = simplices[rng.integers(0, len(simplices), n)]
         out = np.repeat(pts[:1], n, axis=0)
-        out[:, self.free] = self.interp.tri.points[pick].mean(axis=1)
+        out[:, self.free] = self.tri.points[pick].mean(axis=1)
         return out
 
 
@@ -320,6 +353,8 @@ class ScatteredGrid(Grid):
         wi, wo = wi[keep], wo[keep]
         ti, pi_ = vec_to_sph(wi)
         to, po = vec_to_sph(wo)
+        pi_ = np.where(ti == 0.0, 0.0, pi_)  # the normal: one direction whatever its azimuth
+        po = np.where(to == 0.0, 0.0, po)
         good = (ti < HALF_PI) & (to < HALF_PI)
         a = np.stack([ti, pi_, to, po], axis=1)[good]
         _, first = np.unique(np.round(a, 12), axis=0, return_index=True)
@@ -361,8 +396,10 @@ class ScatteredGrid(Grid):
         return f"the hull of its {self.size} samples ({self.coverage_text()})"
 
     def incidence_angles(self) -> np.ndarray:
-        """The distinct θi of the samples (rounded to 1e-9 rad), increasing."""
-        return np.unique(np.round(self.theta_i, 9))
+        """The distinct θi of the samples (those within 1e-9 rad of each other counted once, as
+        the first sample holds it), increasing."""
+        _, first = np.unique(np.round(self.theta_i, 9), return_index=True)
+        return self.theta_i[first]
 
     # -- interpolation ------------------------------------------------------------------------
     def query_space(self, wi, wo, isotropic: bool) -> np.ndarray:
