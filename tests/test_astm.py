@@ -79,7 +79,7 @@ def test_cornell_file_reads_validates_and_converts_to_netcdf_value_for_value(tmp
     energy = report.get("energy")
     assert energy.status == "warn" and "measured data" in energy.detail  # the data's own excess, reported
     assert "10..80°" in report.get("albedo").detail  # swept at the measured incidences only
-    assert report.get("albedo").data["coverage_min"] > 0.9
+    assert abs(report.get("albedo").data["coverage_min"] - 0.94) < 0.005  # (at θi = 80°; formats/astm.md)
 
 
 def test_astm_writer_is_read_back_exactly_by_a_minimal_parser_and_by_the_reader(tmp_path):

@@ -36,8 +36,8 @@ def random_table(n, seed, top=80.0):
 
 def test_interpolation_accuracy_at_held_out_pairs():
     """3000 random isotropic samples of Lambert + GGX α = 0.3 (θ ≤ 80°); 2000 held-out pairs with θ ≤ 75°
-    (random azimuths: the table turns them to φi = 0): median relative error 0.93 %, 95th percentile 4.3 %
-    (the figures formats/astm.md and formats/csv.md state)."""
+    (random azimuths: the table turns them to φi = 0), 99.2 % of them inside the hull: median relative
+    error 0.89 %, 95th percentile 4.1 % (the figures formats/astm.md and formats/csv.md state)."""
     table = random_table(3000, 1)
     rng = np.random.default_rng(7)
     mu = np.cos(np.radians(75.0))
@@ -50,7 +50,7 @@ def test_interpolation_accuracy_at_held_out_pairs():
     inside = np.isfinite(got).all(axis=1)
     assert inside.mean() > 0.98
     rel = np.abs(got[inside] - ref[inside]) / ref[inside]
-    assert np.median(rel) < 0.0100 and np.percentile(rel, 95) < 0.046, (np.median(rel), np.percentile(rel, 95))
+    assert np.median(rel) < 0.0095 and np.percentile(rel, 95) < 0.043, (np.median(rel), np.percentile(rel, 95))
 
 
 def test_samples_are_returned_exactly_and_the_layers_interpolate_linearly_in_incidence():

@@ -34,8 +34,8 @@ scattered table onto a grid with ``"clamp"`` and reports the fraction of the gri
 were extrapolated so.
 
 Accuracy (``tests/test_scattered.py``): an RGB Lambert + GGX α = 0.3 model sampled at 3000 random
-isotropic pairs (θi, θo ≤ 80°) and evaluated at 2000 held-out pairs inside the hull: median
-relative error 0.9 %, 95th percentile 4.4 %.
+isotropic pairs (θi, θo ≤ 80°) and evaluated at 2000 held-out random pairs with θi, θo ≤ 75°
+(99.2 % of them inside the hull): median relative error 0.89 %, 95th percentile 4.1 %.
 """
 
 from __future__ import annotations
