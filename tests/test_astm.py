@@ -17,7 +17,7 @@ from brdftab import pipeline
 from brdftab.checks import run_checks
 from brdftab.errors import BrdftabWarning, FormatError
 
-from _cli import one_error, run
+from _cli import cli, one_error
 
 DATA = Path(__file__).parent / "data"
 
@@ -57,9 +57,9 @@ def test_cornell_file_reads_validates_and_converts_to_netcdf_value_for_value(tmp
     wi, wo = unit(rows[pick, 0], rows[pick, 1]), unit(rows[pick, 2], rows[pick, 3])
     assert np.allclose(t.eval(wi, wo), rows[pick, 4:], rtol=1e-12, atol=1e-15)
     out = tmp_path / "cayman.nc"
-    proc = run("convert", path, out)
-    assert proc.returncode == 0, proc.stderr
-    assert "copied: same grid as the input" in proc.stdout
+    r = cli("convert", path, out)
+    assert r.exit_code == 0, r.stderr
+    assert "copied: same grid as the input" in r.stdout
     nc = brdftab.open(out)
     assert np.allclose(nc.eval(wi, wo), rows[pick, 4:], rtol=1e-12, atol=1e-15)
     assert np.array_equal(np.asarray(nc.values), rows[:, 4:])
@@ -162,5 +162,5 @@ def test_bad_files_give_one_error_line(tmp_path, name, text, expected):
     path.write_text(text)
     with pytest.raises(FormatError):
         brdftab.open(path)
-    proc = run("info", path)
-    one_error(proc.stderr, proc.returncode, expected)
+    r = cli("info", path)
+    one_error(r.stderr, r.exit_code, expected)

@@ -121,3 +121,18 @@ def test_convert_resamples_onto_a_grid_and_reports_the_extrapolation(tmp_path):
     assert result.to_json()["extrapolated"]["outside"] == x["outside"]
     assert result.difference is not None
     assert "nearest sample" in brdftab.open(tmp_path / "g.nc").ds.attrs["extrapolation"]
+
+
+def test_checks_say_what_the_samples_cover_and_pass_nothing_over_no_pairs():
+    """Samples of one quarter of the outgoing azimuths (φo − φi in [0°, 90°], both sides of nothing):
+    the bilateral check finds no pair whose mirror image the samples cover and skips (it passed over
+    zero pairs before); the albedo check reports the small covered fraction and does not pass."""
+    from brdftab.checks import run_checks
+
+    grid = ScatteredGrid.from_grid(SphericalGrid(np.radians([10.0, 30.0, 50.0]), [0.0],
+                                                 np.radians(np.arange(0, 81, 10.0)), np.radians(np.arange(5, 90, 10.0))))
+    table = brdftab.tabulate(source(), grid, progress=False)
+    report = run_checks(table, only=("bilateral", "albedo"))
+    bilateral, albedo = report.get("bilateral"), report.get("albedo")
+    assert bilateral.status == "skip" and "no random pair has data on both sides" in bilateral.detail
+    assert albedo.status == "warn" and albedo.data["coverage_min"] < 0.3
