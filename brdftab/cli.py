@@ -530,6 +530,11 @@ def info(file, as_json):
     stats = table.statistics()  # streamed: the samples are never loaded whole
     axes = [{"name": a.name, "size": len(a), "min_deg": float(np.degrees(a.values[0])),
              "max_deg": float(np.degrees(a.values[-1]))} for a in table.grid.axes]
+    if getattr(table.grid, "scattered", False):  # scattered samples: the range of each angle
+        g = table.grid
+        axes = [{"name": n, "size": g.size, "min_deg": float(np.degrees(getattr(g, n).min())),
+                 "max_deg": float(np.degrees(getattr(g, n).max())), "samples": True}
+                for n in ("theta_i", "phi_i", "theta_o", "phi_o")]
     attrs = {k: (v_.item() if hasattr(v_, "item") else v_) for k, v_ in ds.attrs.items()}
     data = {
         "file": str(file),
@@ -559,7 +564,8 @@ def info(file, as_json):
     lines += _parameter_lines(attrs.get("model"), attrs.get("parameters"), 4)
     lines.append(f"  grid:        {data['grid']}")
     for a in axes:
-        lines.append(f"    {a['name']:<9} {a['size']:>5} nodes  {a['min_deg']:.4g} .. {a['max_deg']:.4g} deg")
+        what = "samples" if a.get("samples") else "nodes"
+        lines.append(f"    {a['name']:<9} {a['size']:>5} {what}  {a['min_deg']:.4g} .. {a['max_deg']:.4g} deg")
     if table.spectral:
         lines.append(f"  wavelengths: {', '.join(f'{x:g}' for x in table.wavelengths)} nm")
     else:

@@ -57,6 +57,8 @@ def test_cornell_file_reads_validates_and_converts_to_netcdf_value_for_value(tmp
     wi, wo = unit(rows[pick, 0], rows[pick, 1]), unit(rows[pick, 2], rows[pick, 3])
     assert np.allclose(t.eval(wi, wo), rows[pick, 4:], rtol=1e-12, atol=1e-15)
     out = tmp_path / "cayman.nc"
+    r = cli("info", path)
+    assert r.exit_code == 0 and "theta_i    1439 samples  10 .. 80 deg" in r.stdout, r.stdout
     r = cli("convert", path, out)
     assert r.exit_code == 0, r.stderr
     assert "copied: same grid as the input" in r.stdout

@@ -87,10 +87,11 @@ def test_outside_the_hull_is_nan_with_a_warning_or_the_nearest_sample():
         table.eval(wi, wo)
 
 
-def test_netcdf_stores_the_samples_and_evaluates_exactly_as_the_table(tmp_path):
+@pytest.mark.parametrize("ext", [".nc", ".zarr"])
+def test_netcdf_and_zarr_store_the_samples_and_evaluate_exactly_as_the_table(tmp_path, ext):
     table = random_table(300, 5)
-    brdftab.save(table, tmp_path / "s.nc")
-    back = brdftab.open(tmp_path / "s.nc")
+    brdftab.save(table, tmp_path / f"s{ext}")
+    back = brdftab.open(tmp_path / f"s{ext}")
     assert back.grid.equals(table.grid) and np.array_equal(back.values, table.values)
     assert list(back.ds["theta_i"].dims) == ["sample"] and back.ds["theta_i"].attrs["units"] == "rad"
     rng = np.random.default_rng(2)
