@@ -66,7 +66,8 @@ def test_cornell_file_reads_validates_and_converts_to_netcdf_value_for_value(tmp
     assert np.allclose(nc.eval(wi, wo), rows[pick, 4:], rtol=1e-12, atol=1e-15)
     assert np.array_equal(np.asarray(nc.values), rows[:, 4:])
     rng = np.random.default_rng(1)
-    qi, qo = unit(rng.uniform(0, 1.5, 300), rng.uniform(-3, 3, 300)), unit(rng.uniform(0, 1.5, 300), rng.uniform(-3, 3, 300))
+    qi = unit(rng.uniform(0, 1.5, 300), rng.uniform(-3, 3, 300))
+    qo = unit(rng.uniform(0, 1.5, 300), rng.uniform(-3, 3, 300))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BrdftabWarning)
         assert np.array_equal(nc.eval(qi, qo), t.eval(qi, qo), equal_nan=True)

@@ -130,8 +130,9 @@ def test_checks_say_what_the_samples_cover_and_pass_nothing_over_no_pairs():
     zero pairs before); the albedo check reports the small covered fraction and does not pass."""
     from brdftab.checks import run_checks
 
-    grid = ScatteredGrid.from_grid(SphericalGrid(np.radians([10.0, 30.0, 50.0]), [0.0],
-                                                 np.radians(np.arange(0, 81, 10.0)), np.radians(np.arange(5, 90, 10.0))))
+    quarter = SphericalGrid(np.radians([10.0, 30.0, 50.0]), [0.0], np.radians(np.arange(0, 81, 10.0)),
+                            np.radians(np.arange(5, 90, 10.0)))
+    grid = ScatteredGrid.from_grid(quarter)
     table = brdftab.tabulate(source(), grid, progress=False)
     report = run_checks(table, only=("bilateral", "albedo"))
     bilateral, albedo = report.get("bilateral"), report.get("albedo")

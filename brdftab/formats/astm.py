@@ -188,7 +188,7 @@ def read_astm(path):
         "source_file": path.name,
         "source_format": "astm",
         "source_quantity": text_q if "MEAS_NAME" in keys else text_q + " (no MEAS_NAME: BRDF assumed)",
-        HEADER_ATTR: "\n".join(l for l in header if not l.strip().upper().startswith("NUM_POINTS")).strip("\n"),
+        HEADER_ATTR: "\n".join(h for h in header if not h.strip().upper().startswith("NUM_POINTS")).strip("\n"),
     }
     if single_phi and not declared:
         provenance["isotropy"] = ("assumed: the file measures one incident azimuth; other azimuths are answered by "
@@ -280,7 +280,7 @@ def write_astm(table, path, **_):
     header = str(attrs.get(HEADER_ATTR, "")).strip("\n")
     if header:
         # the source's header lines; MEAS_NAME says what is written now: f_r (converted on read)
-        kept = [l for l in header.splitlines() if l.strip().upper().split(" ")[0] not in ("MEAS_NAME", "ISOTROPIC")]
+        kept = [h for h in header.splitlines() if h.strip().upper().split(" ")[0] not in ("MEAS_NAME", "ISOTROPIC")]
         head = kept + ["MEAS_NAME BRDF"]
     else:
         head = [f"SOURCE brdftab {__version__}", f"SAMPLE_NAME {_one_line(attrs.get('material', table.name))}",
