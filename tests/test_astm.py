@@ -148,6 +148,16 @@ def test_seed_spec_tabulates_to_scattered_files_validated_before_export(tmp_path
         assert np.allclose(t.values, m.eval(wi, wo), rtol=1e-12)
 
 
+def test_a_dense_grid_is_refused_before_any_work(tmp_path):
+    """The MERL grid's 1.46 million nodes as scattered samples would take minutes to triangulate:
+    one line, exit 2, nothing written."""
+    spec = tmp_path / "big.toml"
+    spec.write_text('[model]\nname = "lambert"\nalbedo = 0.5\n[grid]\ntype = "merl"\n[[output]]\npath = "x.astm"\n')
+    r = cli("tabulate", spec)
+    one_error(r.stderr, r.exit_code, "would hold up to 1,458,000 samples; brdftab writes at most 200,000")
+    assert not (tmp_path / "x.astm").exists()
+
+
 @pytest.mark.parametrize("name,text,expected", [
     ("no-vars.astm", "SAMPLE_NAME x\nNUM_POINTS 1\n", "no line 'VARS"),
     ("count.astm", "NUM_POINTS 2\nVARS theta_i,phi_i,theta_s,phi_s,R,G,B\n0.1,0,0.2,3,1,1,1\n", "NUM_POINTS says 2"),

@@ -51,6 +51,10 @@ __all__ = ["read_astm", "write_astm", "parse_channels", "scattered_target", "pre
 #: NUM_POINTS and VARS, which the writer makes).
 HEADER_ATTR = "astm_header"
 ANGLE_VARS = ("theta_i", "phi_i", "theta_s", "phi_s")
+#: The most samples a scattered writer writes from a grid's nodes: the table written is
+#: triangulated (Delaunay) to be checked and read back, which a dense grid (the 1.46 million
+#: nodes of the MERL grid) makes take minutes and gigabytes.
+MAX_WRITTEN_SAMPLES = 200_000
 #: MEAS_NAME values and what the reader does with them: (description, factor(θs) to f_r).
 QUANTITIES = {
     "BRDF": ("f_r [sr-1] (ASTM E1392 BRDF), read as it is", None),
@@ -220,11 +224,19 @@ def scattered_target(requested):
     """The scattered samples a scattered format writes: the requested grid's own samples when it
     is scattered, else the nodes of the requested grid (both directions above the horizon); for
     a source in a format's own layout, :func:`default_samples`."""
+    from ..errors import ParameterError
     from ..grids import Grid, ScatteredGrid
 
     if isinstance(requested, ScatteredGrid):
         return requested
     if isinstance(requested, Grid):
+        if requested.size > MAX_WRITTEN_SAMPLES:
+            raise ParameterError("grid", f"a scattered file of the nodes of {requested.describe()} would hold up to "
+                                 f"{requested.size:,} samples; brdftab writes at most {MAX_WRITTEN_SAMPLES:,} (a "
+                                 "scattered table is triangulated to be interpolated): give a gonio grid ([grid] or --grid), e.g. "
+                                 "'{type = \"spherical\", theta_i_deg = {start = 0, stop = 80, step = 5}, phi_i_deg = [0], "
+                                 "theta_o_deg = {start = 0, stop = 85, step = 5}, phi_o_deg = {start = 0, stop = 360, "
+                                 "step = 5, endpoint = false}}'")
         return ScatteredGrid.from_grid(requested)
     return default_samples()
 
