@@ -22,7 +22,9 @@ Layout of the dataset (also the netCDF layout, see ``formats/netcdf.md``):
 A :class:`Table` is a :class:`~brdftab.brdf.BRDF`: it evaluates at any (wi, wo) by
 multilinear interpolation in its grid's index space — linear in the warped coordinate of
 warped axes (MERL θh), periodic across the seam of periodic axes (φd, φh), after folding φd
-by the table's declared fold. At its own nodes it returns the stored values exactly.
+by the table's declared fold. At its own nodes it returns the stored values exactly. A table of
+scattered samples (:class:`~brdftab.grids.ScatteredGrid`: ASTM and CSV files) interpolates
+linearly on their Delaunay triangulation instead (:mod:`brdftab.grids.scattered`).
 The interpolation runs compiled, one pass per direction pair written into the result
 (:mod:`brdftab._interp_kernels`); the numpy code it replaced (:meth:`Table._eval_numpy`, also the
 path of a table evaluated slab by slab from disk) is its reference, and the two agree to 1e-12
@@ -586,7 +588,6 @@ class Table(BRDF):
                               f"{self.describe()} ({self.grid.domain_text()}); they evaluate to NaN",
                               BrdftabWarning, stacklevel=4)
         return self._channels(out, lam, n)
-
 
     def _eval_scattered(self, wi, wo):
         """A scattered table's interpolation (:mod:`brdftab.grids.scattered`): linear on the
