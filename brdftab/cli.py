@@ -289,7 +289,8 @@ def tabulate(ctx, specs, out_dir, overwrite, allow_invalid, levels, settings, pr
 USABLE_FORMATS = (("netcdf", (".nc", ".nc4", ".netcdf")), ("zarr", (".zarr",)), ("merl", (".binary",)),
                   ("pbsdf", (".pbsdf",)), ("rgl", (".bsdf",)), ("exr", (".exr",)), ("zemax", (".bsdf",)),
                   ("lighttools", (".bsdf",)), ("mbsdf", (".mbsdf",)),
-                  ("speos", (".anisotropicbsdf",)), ("speos-brdf", (".brdf",)), ("radiance", (".xml",)))
+                  ("speos", (".anisotropicbsdf",)), ("speos-brdf", (".brdf",)), ("radiance", (".xml",)),
+                  ("astm", (".astm",)), ("csv", (".csv",)))
 
 
 def _format_names() -> str:
@@ -388,6 +389,11 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
         click.echo("copied: same grid as the input" + (", in colour" if colour else ", values unchanged"))
         return
     click.echo(f"resampled: {result.source_grid or 'the input'} -> {grid_text_out}")
+    x = result.extrapolated
+    if x:
+        click.echo(f"extrapolated: {x['outside']} of {x['nodes']} nodes ({100 * x['fraction']:.3g} %) lie outside the "
+                   f"hull of the input's scattered samples and take their nearest sample's value (up to "
+                   f"{x['max_distance']:.3g} away)")
     d = result.difference
     if d is not None:
         click.echo(f"resampling error of f cosθi cosθo: rms relative {d.rms_rel:.3g}, max relative {d.max_rel:.3g} "
@@ -526,6 +532,11 @@ def info(file, as_json):
     stats = table.statistics()  # streamed: the samples are never loaded whole
     axes = [{"name": a.name, "size": len(a), "min_deg": float(np.degrees(a.values[0])),
              "max_deg": float(np.degrees(a.values[-1]))} for a in table.grid.axes]
+    if getattr(table.grid, "scattered", False):  # scattered samples: the range of each angle
+        g = table.grid
+        axes = [{"name": n, "size": g.size, "min_deg": float(np.degrees(getattr(g, n).min())),
+                 "max_deg": float(np.degrees(getattr(g, n).max())), "samples": True}
+                for n in ("theta_i", "phi_i", "theta_o", "phi_o")]
     attrs = {k: (v_.item() if hasattr(v_, "item") else v_) for k, v_ in ds.attrs.items()}
     data = {
         "file": str(file),
@@ -555,7 +566,8 @@ def info(file, as_json):
     lines += _parameter_lines(attrs.get("model"), attrs.get("parameters"), 4)
     lines.append(f"  grid:        {data['grid']}")
     for a in axes:
-        lines.append(f"    {a['name']:<9} {a['size']:>5} nodes  {a['min_deg']:.4g} .. {a['max_deg']:.4g} deg")
+        what = "samples" if a.get("samples") else "nodes"
+        lines.append(f"    {a['name']:<9} {a['size']:>5} {what}  {a['min_deg']:.4g} .. {a['max_deg']:.4g} deg")
     if table.spectral:
         lines.append(f"  wavelengths: {', '.join(f'{x:g}' for x in table.wavelengths)} nm")
     else:

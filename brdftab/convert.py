@@ -146,10 +146,15 @@ class Conversion:
     written: object = None
     input_report: object = None
     input_table: object = None
+    #: a scattered source resampled: ``{"nodes", "outside", "fraction", "max_distance"}`` — how
+    #: many nodes of the written table lay outside the hull of the source's samples and took
+    #: their nearest sample's value (:mod:`brdftab.grids.scattered`)
+    extrapolated: dict | None = None
 
     def to_json(self) -> dict:
         return {"source": str(self.source), "target": str(self.target), "format": self.format,
                 "source_grid": self.source_grid, "target_grid": self.target_grid, "resampled": self.resampled,
+                "extrapolated": self.extrapolated,
                 "folded": list(self.folded), "difference": self.difference.to_json() if self.difference else None,
                 "note": self.note, "checks": _checks_json(self.report),
                 "input_checks": _checks_json(self.input_report)}
@@ -420,6 +425,10 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
                 brdf.origin = table.origin
                 if "reciprocity" in src_fold:  # a table folded by reciprocity holds reciprocal data
                     brdf.reciprocal = True
+        scattered = resampled and getattr(getattr(table, "grid", None), "scattered", False)
+        if scattered:  # outside the samples' hull: the nearest sample, counted and reported
+            table.outside = "clamp"
+            table.extrapolation[:] = [0, 0, 0.0]
         if out_grid is not None and resampled and fmt.prepare is None:
             payload = _tabulate(brdf, out_grid, wavelengths, table, source, progress)
             bad = int(np.isnan(payload.values).any(axis=-1).sum())
@@ -433,6 +442,16 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
         else:
             with formats.naming(target):
                 payload = formats.prepare(fmt, brdf, out_grid, options)
+        extrapolated = None
+        if scattered:
+            n, k, dmax = table.extrapolation
+            extrapolated = {"nodes": int(n), "outside": int(k), "fraction": k / n if n else 0.0,
+                            "max_distance": float(dmax)}
+            if hasattr(payload, "ds"):
+                payload.ds.attrs["extrapolated_fraction"] = extrapolated["fraction"]
+                payload.ds.attrs["extrapolation"] = (
+                    f"{k} of {n} nodes lay outside the hull of the samples of {shown(source.name)} and took their "
+                    f"nearest sample's value (up to {dmax:.3g} away in projected-hemisphere coordinates)")
         # validate what is written, as the file stores it (a copy is the input itself: its
         # report is the output's)
         from .table import Table
@@ -479,7 +498,8 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
         src_text = getattr(getattr(table, "grid", None), "describe", lambda: "")()
         result = Conversion(source, target, fmt.name, src_text,
                             out_grid.describe() if out_grid is not None else "", resampled, folded,
-                            report=report_out, written=written, input_report=report_in, input_table=table)
+                            report=report_out, written=written, input_report=report_in, input_table=table,
+                            extrapolated=extrapolated)
         if resampled or folded:
             back = _read_back(fmt, target, written)
             if back is None:

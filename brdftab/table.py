@@ -22,7 +22,9 @@ Layout of the dataset (also the netCDF layout, see ``formats/netcdf.md``):
 A :class:`Table` is a :class:`~brdftab.brdf.BRDF`: it evaluates at any (wi, wo) by
 multilinear interpolation in its grid's index space — linear in the warped coordinate of
 warped axes (MERL θh), periodic across the seam of periodic axes (φd, φh), after folding φd
-by the table's declared fold. At its own nodes it returns the stored values exactly.
+by the table's declared fold. At its own nodes it returns the stored values exactly. A table of
+scattered samples (:class:`~brdftab.grids.ScatteredGrid`: ASTM and CSV files) interpolates
+linearly on their Delaunay triangulation instead (:mod:`brdftab.grids.scattered`).
 The interpolation runs compiled, one pass per direction pair written into the result
 (:mod:`brdftab._interp_kernels`); the numpy code it replaced (:meth:`Table._eval_numpy`, also the
 path of a table evaluated slab by slab from disk) is its reference, and the two agree to 1e-12
@@ -150,6 +152,11 @@ class Table(BRDF):
         self.origin = str(origin)
         self.outside = outside
         self._warned = False
+        if getattr(self.grid, "scattered", False):
+            self.grid.space_isotropic = self.isotropic
+            #: queries, queries outside the samples' hull, farthest extrapolation distance (counted
+            #: by every evaluation; :func:`brdftab.convert.convert` reports them)
+            self.extrapolation = [0, 0, 0.0]
         self._specular = None
         #: Callables that release the file this table reads lazily (:meth:`close`).
         self.closers = []
@@ -604,6 +611,8 @@ class Table(BRDF):
     def _eval_numpy(self, wi, wo, lam, n):
         """The numpy interpolation (the reference the compiled path is tested against, and the
         path of a table evaluated slab by slab from disk)."""
+        if getattr(self.grid, "scattered", False):
+            return self._channels(self._eval_scattered(wi, wo), lam, n)
         idx, outside = self.grid.locate(wi, wo, isotropic=self.isotropic)
         if self._slab_mode():
             lo, hi = _slab_rows(self, idx[0])
@@ -627,6 +636,38 @@ class Table(BRDF):
                               f"{self.describe()} ({self.grid.domain_text()}); they evaluate to NaN",
                               BrdftabWarning, stacklevel=4)
         return self._channels(out, lam, n)
+
+    def _eval_scattered(self, wi, wo):
+        """A scattered table's interpolation (:mod:`brdftab.grids.scattered`): linear on the
+        samples' triangulation; outside its hull NaN (one warning), an error, or the nearest
+        sample's value, as :attr:`outside` says, counted in :attr:`extrapolation`."""
+        cached = getattr(self, "_scattered", None)
+        if cached is None:
+            values = np.array(self.values, dtype=float)
+            miss = self.missing
+            if miss is not None:
+                values[miss] = np.nan
+            cached = self._scattered = self.grid.interpolant(values, self.isotropic)
+        out, outside, dist = cached(self.grid.query_space(wi, wo, self.isotropic))
+        n_out = int(outside.sum())
+        stats = self.extrapolation
+        stats[0] += outside.size
+        stats[1] += n_out
+        if n_out:
+            stats[2] = max(stats[2], float(dist.max()))
+        if n_out and self._outside == "raise":
+            raise BrdftabError(f"{n_out} direction pair(s) outside the domain of the {self.describe()}"
+                               f" ({self.grid.domain_text()})")
+        if n_out and self._outside == "nan":
+            out[outside] = np.nan
+        if n_out and not self._warned:
+            self._warned = True
+            what = ("they evaluate to NaN" if self._outside == "nan" else
+                    f"each takes its nearest sample's value (up to {float(dist.max()):.3g} away in projected-"
+                    "hemisphere coordinates)")
+            warnings.warn(f"{n_out} of {outside.size} direction pair(s) lie outside the domain of the "
+                          f"{self.describe()} ({self.grid.domain_text()}); {what}", BrdftabWarning, stacklevel=5)
+        return out
 
 
 #: Axes along which below-horizon nodes get ghost values, in order of preference: the axis
@@ -1525,6 +1566,9 @@ def make_table(values, grid: Grid, layout: Layout, brdf: BRDF | None = None, pro
     coords = {}
     for ax in grid.axes:
         coords[ax.name] = xr.Variable((ax.name,), ax.values, attrs=grid.coord_attrs(ax.name))
+    aux = getattr(grid, "aux_coords", None)
+    if aux is not None:  # per-node coordinates (a scattered table's angles)
+        coords.update(aux())
     if layout.spectral:
         chan_dim = "wavelength"
         coords["wavelength"] = xr.Variable(("wavelength",), np.asarray(layout.wavelengths, float),

@@ -95,7 +95,8 @@ def test_components_compose_microfacet_and_did_you_mean():
 
 
 def test_grid_registry_builds_from_declared_keys():
-    assert set(GRIDS) == {"rusinkiewicz", "merl", "spherical", "specular-polar", "speos", "klems", "tensor-tree"}
+    assert set(GRIDS) == {"rusinkiewicz", "merl", "spherical", "specular-polar", "speos", "klems", "tensor-tree",
+                          "scattered"}
     g = grid_from_config({"type": "rusinkiewicz", "n_theta_h": 5, "theta_d_deg": [0, 45, 90], "n_phi_d": 4})
     assert g.shape == (5, 3, 4)
     with pytest.raises(brdftab.errors.ParameterError, match="did you mean 'n_theta_d'"):

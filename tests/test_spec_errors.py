@@ -129,7 +129,7 @@ CASES = {
     "unknown-output-extension": (
         _spec_text(output='[[output]]\npath = "out.xyz"\n'),
         ["output[0].path", ".xyz", "(known: .nc, .nc4, .netcdf, .zarr, .binary, .pbsdf, .bsdf, .exr, .mbsdf, "
-         ".anisotropicbsdf, .brdf, .xml)"],
+         ".anisotropicbsdf, .brdf, .xml, .astm, .csv)"],
     ),
     "unknown-output-option": (
         _spec_text(output='[[output]]\npath = "out.nc"\ncompression = 4\n'),

@@ -62,7 +62,18 @@ def sweep(ctx, theta_i_max, n_theta_i, n_phi_i):
     b = ctx.brdf
     phi = np.array([0.0]) if b.isotropic else np.arange(n_phi_i) * (2 * np.pi / n_phi_i)
     grid = b.grid if ctx.on_grid else None
-    if grid is not None and "theta_i" in grid.dims:
+    if grid is not None and getattr(grid, "scattered", False):
+        # scattered samples: swept at their own incidence angles when they share a few (a gonio
+        # measurement), else over the range they span
+        nodes = grid.incidence_angles()
+        nodes = nodes[nodes <= theta_i_max + 1e-12]
+        if nodes.size == 0:
+            nodes = grid.incidence_angles()[:1]
+        theta = nodes if nodes.size <= n_theta_i else np.linspace(nodes[0], nodes[-1], n_theta_i)
+        if not b.isotropic:
+            phi = np.unique(np.round(grid.phi_i, 9))
+            phi = phi if phi.size <= n_phi_i else np.arange(n_phi_i) * (2 * np.pi / n_phi_i)
+    elif grid is not None and "theta_i" in grid.dims:
         ax = grid.axes[grid.dims.index("theta_i")]
         nodes = ax.values[ax.values <= theta_i_max + 1e-12]
         theta = nodes if nodes.size else ax.values[:1]

@@ -96,6 +96,11 @@ def measured_theta_max(brdf):
     return top if 0 < top < np.pi / 2 - 1e-9 else None
 
 
+def _scattered(b) -> bool:
+    """A table of scattered samples: no multilinear cells, its own interpolation compares pairs."""
+    return bool(getattr(getattr(b, "grid", None), "scattered", False))
+
+
 def covered(table, wi, wo) -> np.ndarray:
     """True for pairs inside the table's domain (:meth:`~brdftab.grids.Grid.locate`)."""
     _, outside = table.grid.locate(wi, wo, isotropic=table.isotropic)
@@ -128,6 +133,8 @@ def node_pairs(ctx):
             for key, v in data_blocks(ctx):
                 yield phi_d_pairs(grid, v, j, key)
         return rows
+    if _scattered(table):
+        return _scattered_pairs(table, data_values(ctx))
     if not grid.node_checks:
         return None  # nodes without partners: pairs are sampled and interpolated
     if over_budget(table):
@@ -135,6 +142,29 @@ def node_pairs(ctx):
                            "the memory budget")
     nodes = _node_pairs_spherical(table, data_values(ctx))
     return None if nodes is None else (lambda: iter([nodes]))
+
+
+def _scattered_pairs(table, v):
+    """Node pairs of scattered samples: each sample (wi, wo) with the sample at (wo, wi) (the
+    same point of the interpolation space within 1e-9), weighted cosθi cosθo; None when fewer
+    than half of the samples have one (then pairs are sampled and interpolated)."""
+    from scipy.spatial import cKDTree
+
+    from ..grids.scattered import pair_space
+
+    grid = table.grid
+    wi, wo = grid.directions()
+    here = pair_space(wi, wo, table.isotropic)
+    d, j = cKDTree(here).query(pair_space(wo, wi, table.isotropic))
+    has = d <= 1e-9
+    if has.sum() < 0.5 * grid.size:
+        return None
+    c = v.shape[-1]
+    v = v.reshape(-1, c)
+    partner = np.where(has[:, None], v[j], np.nan)
+    w = np.where(has, wi[:, 2] * wo[:, 2], 0.0)
+    nodes = (v, partner, w, lambda row: int(row))
+    return lambda: iter([nodes])
 
 
 def _node_pairs_spherical(table, v):
@@ -252,7 +282,7 @@ class Reciprocity(Check):
             wi, wo, w = wi[keep], wo[keep], w[keep]
             n = (wi, wo)
         extra = {}
-        if nodes is None and ctx.on_grid:
+        if nodes is None and ctx.on_grid and not _scattered(b):
             # both directions interpolated the same way; judged against the resolution limit too
             s, extra = interpolated_asymmetry(ctx, wi, wo, w, lum)
         else:
@@ -325,7 +355,9 @@ class Reciprocity(Check):
             if not keep.any():
                 return self._on_source(ctx, wi, wo, w, max_relative, weighted, declared)
             wi, wo, w = wi[keep], wo[keep], w[keep]
-            return self._interpolated(ctx, wi, wo, w, weighted_interpolated, declared)
+            if not _scattered(b):
+                return self._interpolated(ctx, wi, wo, w, weighted_interpolated, declared)
+            # scattered samples: both directions by the table's own (Delaunay) interpolation below
         f1 = ctx.eval(b, wi, wo)
         f2 = ctx.eval(b, wo, wi)
         s = asymmetry(f1, f2, w)

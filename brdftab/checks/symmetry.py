@@ -72,6 +72,8 @@ class _Pairwise(Check):
         f1 = ctx.eval(ctx.brdf, wi[keep], wo[keep])
         f2 = ctx.eval(ctx.brdf, wi2[keep], wo2[keep])
         s = asymmetry(f1, f2, w[keep])
+        if not s["compared"]:  # every pair outside the table's domain or missing: nothing was measured
+            return self.skip(f"no random pair has data on both sides: the {self.what} cannot be measured", compared=0)
         worst = s.pop("worst")
         at = ""
         if worst is not None:
@@ -180,6 +182,9 @@ class Bilateral(_Pairwise):
 
     def run(self, ctx, max_relative, weighted, pairs, seed):
         b = ctx.brdf
+        if ctx.on_grid and getattr(b.grid, "scattered", False) and b.grid.phi_d_fold == "bilateral":
+            return self.outcome(True, 0.0, max_relative, "symmetric by construction (scattered samples of one side of "
+                                "the plane of incidence, mirrored: phi_d_fold = 'bilateral')", mode="construction")
         if ctx.on_grid and b.grid.node_checks:
             grid = b.grid
             if grid.parameterization == "rusinkiewicz":

@@ -43,6 +43,9 @@ INCIDENCE_AXES = ("theta_i", "phi_i", "speos_rotation")
 def cell_centres(grid, n: int, seed: int = 0, at_nodes=()):
     """(wi, wo) at the centres of ``n`` random cells of ``grid`` (above the horizon only);
     axes named in ``at_nodes`` are held at random nodes instead of cell centres."""
+    own = getattr(grid, "cell_centres", None)
+    if callable(own):  # scattered samples: centroids of the simplices of their triangulation
+        return own(n, seed, at_nodes)
     rng = np.random.default_rng(seed)
     coords = []
     for ax in grid.axes:

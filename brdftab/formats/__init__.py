@@ -418,7 +418,7 @@ def write(brdf, path, grid=None, *, format: str | None = None, overwrite: bool =
 
     requested = grid if grid is not None else (brdf.grid if isinstance(brdf, Table) else None)
     target = target_grid(fmt, requested, options)
-    if grid is not None and (target is None or not target.equals(grid)):
+    if grid is not None and (target is None or not (target.equals(grid) or getattr(target, "made_from", None) is grid)):
         stored = f"its own grid, {target.describe()}" if target is not None else "its own sampling"
         warnings.warn(f"{path}: the {fmt.name} format stores {stored}; the grid given ({grid.describe()}) is not used",
                       BrdftabWarning, stacklevel=3)
@@ -451,7 +451,8 @@ def write_prepared(fmt: FileFormat, payload, path, *, overwrite: bool = False, o
 #: optional library is missing must still import: it imports that library inside functions.
 #: Content detection tries them in this order: pbsdf (a tensor file with Mueller fields)
 #: before rgl (any other tensor file).
-BUILTIN = ("netcdf", "zarr", "merl", "pbsdf", "rgl", "exr", "zemax", "lighttools", "mbsdf", "speos", "radiance")
+BUILTIN = ("netcdf", "zarr", "merl", "pbsdf", "rgl", "exr", "zemax", "lighttools", "mbsdf", "speos", "radiance",
+           "astm", "csv")
 
 for _name in BUILTIN:
     importlib.import_module(f"{__name__}.{_name}")

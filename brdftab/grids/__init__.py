@@ -20,6 +20,8 @@ keys declared as :class:`~brdftab.params.Param`:
     ``klems_i, klems_o``: Klems patch pairs (LBNL WINDOW / Radiance XML matrices, 145 × 145).
 ``tensor-tree`` (:mod:`.tensor_tree`)
     Radiance tensor-tree square coordinates (XML ``TensorTree3`` / ``TensorTree4``).
+``scattered`` (:mod:`.scattered`)
+    ``sample``: scattered direction pairs (ASTM, CSV), interpolated on their Delaunay triangulation.
 
 Axes, the φd folds and angle lists live in :mod:`.axis`.
 """
@@ -37,9 +39,10 @@ from .specular_polar import SpecularPolarGrid
 from .speos import SpeosGrid
 from .klems import KlemsGrid
 from .tensor_tree import TensorTreeGrid
+from .scattered import ScatteredGrid
 
 __all__ = ["Axis", "Grid", "GRIDS", "GRID_TYPES", "RusinkiewiczGrid", "SphericalGrid", "SpecularPolarGrid", "SpeosGrid",
-           "KlemsGrid", "TensorTreeGrid", "merl_grid",
+           "KlemsGrid", "TensorTreeGrid", "ScatteredGrid", "merl_grid",
            "grid_from_config", "grid_from_dataset", "grid_wavelengths", "check_grid", "fold_phi_d", "PHI_D_FOLDS", "SAMPLE_POSITIONS",
            "COMMON_PARAMS", "register"]
 
