@@ -89,8 +89,19 @@ def test_measured_non_physical_data_is_reported_not_refused():
 
 def test_bounds_and_albedo_catch_what_they_name():
     bright = Scaled(DepolarizingLambert(0.5), np.diag([3.0, 0, 0, 0]))  # albedo 1.5
-    r = run_checks(bright, only=("mueller_albedo",)).get("mueller_albedo")
-    assert r.status == "fail" and r.figure == pytest.approx(1.5, rel=1e-3)
+    r = run_checks(bright, only=("mueller_albedo", "energy"))
+    # M00 is eval here: one verdict on its albedo (energy's), the Mueller check reports it
+    assert r.get("energy").status == "fail" and r.get("energy").figure == pytest.approx(1.5, rel=1e-3)
+    m = r.get("mueller_albedo")
+    assert m.status == "pass" and "max albedo of M00 = 1.5" in m.detail and "energy check" in m.detail
+
+    class Apart(Scaled):  # eval (the unscaled term's) is not M00
+        def _eval(self, wi, wo, lam, n):
+            return self.term._eval(wi, wo, lam, n)
+
+    apart = run_checks(Apart(DepolarizingLambert(0.5), np.diag([3.0, 0, 0, 0])), only=("mueller_albedo",))
+    a = apart.get("mueller_albedo")
+    assert a.status == "fail" and a.figure == pytest.approx(1.5, rel=1e-3) and "eval is not M00" in a.detail
     over = Scaled(DepolarizingLambert(0.5), np.array([[1.0, 2.0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0], [0, 0, 0, 0]]))
     b = run_checks(over, only=("mueller_bounds", "depolarization"))
     assert b.get("mueller_bounds").status == "fail" and b.get("mueller_bounds").figure == pytest.approx(1.0)

@@ -243,7 +243,8 @@ class PolarizedReciprocity(_MuellerCheck):
 @register
 class MuellerAlbedo(_MuellerCheck):
     name = "mueller_albedo"
-    summary = "Directional albedo of M00 <= 1 + tolerance; eval equals M00."
+    summary = ("eval equals M00 (whose directional albedo the energy check then judges); where it does not, "
+               "the albedo of M00 <= 1 + tolerance too.")
     thresholds = (
         Param("tolerance", "float", "Accepted albedo excess over 1.", default=0.01, minimum=0.0),
         Param("eval_tolerance", "float", "Largest accepted |eval - M00| relative to M00.", default=1e-9, minimum=0.0),
@@ -278,8 +279,14 @@ class MuellerAlbedo(_MuellerCheck):
         gap = np.where(np.isfinite(gap), gap, 0.0)
         g = float(gap.max()) if gap.size else 0.0
         label = ctx.labels()[c] if c < len(ctx.labels()) else c
-        ok = top <= 1.0 + tolerance and g <= eval_tolerance
-        return self._judge(ctx, ok, top, 1.0 + tolerance,
-                           f"max albedo of M00 = {top:.4g} at θi = {np.degrees(theta[i]):.3g}°, channel {label} "
-                           f"(accepted ≤ {1 + tolerance:g}); max |eval - M00| / M00 = {g:.3g} (accepted ≤ "
-                           f"{eval_tolerance:g})", theta_i_deg=np.degrees(theta), values=a, eval_gap=g)
+        where = f"max albedo of M00 = {top:.4g} at θi = {np.degrees(theta[i]):.3g}°, channel {label}"
+        if g <= eval_tolerance:
+            # M00 is eval: its albedo is the one the energy check judges (one verdict, not two)
+            return self._judge(ctx, True, g, eval_tolerance,
+                               f"max |eval - M00| / M00 = {g:.3g} (accepted ≤ {eval_tolerance:g}): M00 is f_r, "
+                               f"its albedo judged by the energy check ({where})",
+                               theta_i_deg=np.degrees(theta), values=a, eval_gap=g)
+        ok = top <= 1.0 + tolerance
+        return self._judge(ctx, False, top if not ok else g, 1.0 + tolerance if not ok else eval_tolerance,
+                           f"{where} (accepted ≤ {1 + tolerance:g}); max |eval - M00| / M00 = {g:.3g} (accepted ≤ "
+                           f"{eval_tolerance:g}): eval is not M00", theta_i_deg=np.degrees(theta), values=a, eval_gap=g)
