@@ -276,12 +276,18 @@ _T3P8 = 2.41421356237309504880
 
 @device
 def _atan_pos(x):
-    if x > _T3P8:
-        y, extra, x = HALF_PI, _MOREBITS, -1.0 / x
-    elif x <= 0.66:
-        y, extra = 0.0, 0.0
-    else:
-        y, extra, x = 0.25 * PI, 0.5 * _MOREBITS, (x - 1.0) / (x + 1.0)
+    """atan(x) for x >= 0 (cephes' reduction and rational form), with its three ranges chosen
+    by selects rather than branches (x/1 is x, and 0 + a is a: the same numbers as the
+    branches give): where x is random, branches would mispredict about half the time."""
+    b = np.float64(x > _T3P8)
+    m = np.float64(x > 0.66) - b
+    s = 1.0 - b - m
+    xc = min(x, _T3P8)                         # x where it is used with weight 0 too: finite
+    num = (s * xc + m * (xc - 1.0)) - b        # exactly one term is not 0
+    den = (s + m * (xc + 1.0)) + b * x
+    y = b * HALF_PI + m * (0.25 * PI)
+    extra = b * _MOREBITS + m * (0.5 * _MOREBITS)
+    x = num / den
     z = x * x
     p = (((_ATAN_P[0] * z + _ATAN_P[1]) * z + _ATAN_P[2]) * z + _ATAN_P[3]) * z + _ATAN_P[4]
     q = ((((z + _ATAN_Q[0]) * z + _ATAN_Q[1]) * z + _ATAN_Q[2]) * z + _ATAN_Q[3]) * z + _ATAN_Q[4]
@@ -290,13 +296,14 @@ def _atan_pos(x):
 
 @device
 def _atan2(y, x):
-    """``atan2(y, x)`` within 2 ulp of libm's (faster); libm's own outside the half plane
-    x > 0 (finite) and for NaN."""
-    if 0.0 < x < math.inf and abs(y) < math.inf:
-        return math.copysign(_atan_pos(abs(y) / x), y)
-    if x < 0.0 and -math.inf < x and abs(y) < math.inf and y != 0.0:
-        return math.copysign(PI - _atan_pos(abs(y) / -x), y)
-    return math.atan2(y, x)
+    """``atan2(y, x)`` within 2 ulp of libm's (faster); libm's own on the axes, off finite
+    values and for NaN. Both half planes in one branch-free form (π − atan(|y|/|x|) for x < 0)."""
+    ax = abs(x)
+    ay = abs(y)
+    if not (0.0 < ax < math.inf and ay < math.inf and (x > 0.0 or y != 0.0)):
+        return math.atan2(y, x)
+    a = _atan_pos(ay / ax)
+    return math.copysign(PI - a if x < 0.0 else a, y)
 
 
 @device
@@ -658,8 +665,9 @@ class TablePlan:
 
 @device
 def _elevation(x, y, z):
-    d = math.sqrt(x * x + y * y + (z - 1.0) ** 2)
-    return 2.0 * math.asin(min(max(0.5 * d, -1.0), 1.0))
+    """The polar angle of a unit vector above the horizon (z > 0): atan2(|xy|, z), the number
+    of Mitsuba's 2 asin(|w − ẑ|/2) (``_rgl_warp.elevation``) to rounding, branch-free."""
+    return _atan2(math.sqrt(x * x + y * y), z)
 
 
 @device
@@ -678,14 +686,16 @@ def _param_cell(p, vals):
     n = vals.shape[0]
     if n == 1:
         return 0, 0.0
-    # searchsorted(vals, p, "left") - 1, clipped to [0, n - 2]
-    lo, hi = 0, n
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if vals[mid] < p:
-            lo = mid + 1
-        else:
-            hi = mid
+    # searchsorted(vals, p, "left") = the number of values below p, by halving steps of a fixed
+    # count that add or not (a select, not a branch: p is random, the values' order is not)
+    lo = 0
+    step = 1
+    while 2 * step <= n:
+        step *= 2
+    while step > 0:
+        k = min(lo + step, n)
+        lo = k if vals[k - 1] < p else lo
+        step >>= 1
     i = min(max(lo - 1, 0), n - 2)
     w1 = (p - vals[i]) / (vals[i + 1] - vals[i])
     w1 = min(max(w1, 0.0), 1.0)
