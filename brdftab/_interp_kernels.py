@@ -41,6 +41,7 @@ PI = np.pi
 SNAP = 1e-9
 DOMAIN_TOL = 1e-9
 HORIZON = 1e-12
+INV_TWO_PI = 1.0 / TWO_PI
 THETA_H_ZERO = 1e-12
 #: Pairs per block of a parallel loop (the per-block scratch arrays are allocated once per block).
 BLOCK = 512
@@ -275,16 +276,16 @@ _T3P8 = 2.41421356237309504880
 
 
 @device
-def _atan_pos(x):
-    """atan(x) for x >= 0 (cephes' reduction and rational form), with its three ranges chosen
-    by selects rather than branches (x/1 is x, and 0 + a is a: the same numbers as the
-    branches give): where x is random, branches would mispredict about half the time."""
-    b = np.float64(x > _T3P8)
-    m = np.float64(x > 0.66) - b
+def _atan_ratio(ay, ax):
+    """atan(ay/ax) for finite ay >= 0 and 0 < ax (cephes' reduction and rational form) with one
+    division: the reduced argument is ay/ax, (ay − ax)/(ay + ax) or −ax/ay by the range of the
+    ratio, its ranges chosen by selects rather than branches (where the ratio is random,
+    branches would mispredict about half the time)."""
+    b = np.float64(ay > _T3P8 * ax)
+    m = np.float64(ay > 0.66 * ax) - b
     s = 1.0 - b - m
-    xc = min(x, _T3P8)                         # x where it is used with weight 0 too: finite
-    num = (s * xc + m * (xc - 1.0)) - b        # exactly one term is not 0
-    den = (s + m * (xc + 1.0)) + b * x
+    num = (s * ay + m * (ay - ax)) - b * ax    # exactly one term is not 0
+    den = (s * ax + m * (ay + ax)) + b * ay
     y = b * HALF_PI + m * (0.25 * PI)
     extra = b * _MOREBITS + m * (0.5 * _MOREBITS)
     x = num / den
@@ -302,7 +303,7 @@ def _atan2(y, x):
     ay = abs(y)
     if not (0.0 < ax < math.inf and ay < math.inf and (x > 0.0 or y != 0.0)):
         return math.atan2(y, x)
-    a = _atan_pos(ay / ax)
+    a = _atan_ratio(ay, ax)
     return math.copysign(PI - a if x < 0.0 else a, y)
 
 
@@ -756,6 +757,8 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
     res = spectra.shape[1]
     c0 = math.cos(theta_hold)
     s0 = math.sin(theta_hold)
+    inv_w = 1.0 / (w - 1)
+    inv_h = 1.0 / (h - 1)
     n_blocks = (m + BLOCK - 1) // BLOCK
     zi = 0
     zo = 0
@@ -779,15 +782,15 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
                 sx = (-1.0 if ix >= 0.0 else 1.0) if reduction == 4 else sy
                 ix, iy, ox, oy = ix * sx, iy * sy, ox * sx, oy * sy
             mx, my, mz = ix + ox, iy + oy, iz + oz
-            mn = math.sqrt(mx * mx + my * my + mz * mz)
-            mx, my, mz = mx / mn, my / mn, mz / mn
+            mn = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
+            mx, my, mz = mx * mn, my * mn, mz * mn
             th_i = _elevation(ix, iy, iz)
             ph_i = _atan2(iy, ix)
             th_m = _elevation(mx, my, mz)
             ph_m = _atan2(my, mx)
             ui0 = _theta2u(th_i)
-            ui1 = (ph_i + PI) / TWO_PI
-            uy = ((ph_m - ph_i if iso else ph_m) + PI) / TWO_PI
+            ui1 = (ph_i + PI) * INV_TWO_PI
+            uy = ((ph_m - ph_i if iso else ph_m) + PI) * INV_TWO_PI
             um0 = _theta2u(th_m)
             um1 = uy - math.floor(uy)
             # parameter corners (φi, θi): slices s_k, weights w_k (first parameter most significant)
@@ -818,14 +821,14 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
             d01 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px)
             d11 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px + 1)
             e0, e1 = _lerp(d00, d01, fy), _lerp(d10, d11, fy)
-            fx = fx * _lerp(e0, e1, 0.5 * fx) / (w - 1)
+            fx = fx * _lerp(e0, e1, 0.5 * fx) * inv_w
             if px > 0:
                 fx = fx + _lerp(_g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, px - 1),
                                 _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px - 1), fy)
             r0 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, w - 2)
             r1 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, w - 2)
             fx = fx / _lerp(r0, r1, fy)
-            fy = fy * _lerp(r0, r1, 0.5 * fy) / (h - 1)
+            fy = fy * _lerp(r0, r1, 0.5 * fy) * inv_h
             if py > 0:
                 fy = fy + _g2(marg, q0, q1, q2, q3, v0, v1, v2, v3, py - 1)
             # spectra at the warped sample (every corner, as the reader's lookup)
@@ -852,11 +855,8 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
             scale = 1.0
             if jacobian:
                 scale = _bilinear2(ndf, um0, um1) / (4.0 * _bilinear2(sigma, ui0, ui1))
+            if divide:
+                scale = scale / oz
             for c in range(nc):
-                v = spec[lo[c]] * (1.0 - t[c]) + spec[hi[c]] * t[c]
-                if jacobian:
-                    v = v * scale
-                if divide:
-                    v = v / oz
-                out[i, c] = v
+                out[i, c] = (spec[lo[c]] * (1.0 - t[c]) + spec[hi[c]] * t[c]) * scale
     return zi, zo
