@@ -41,6 +41,7 @@ PI = np.pi
 SNAP = 1e-9
 DOMAIN_TOL = 1e-9
 HORIZON = 1e-12
+INV_TWO_PI = 1.0 / TWO_PI
 THETA_H_ZERO = 1e-12
 #: Pairs per block of a parallel loop (the per-block scratch arrays are allocated once per block).
 BLOCK = 512
@@ -275,13 +276,19 @@ _T3P8 = 2.41421356237309504880
 
 
 @device
-def _atan_pos(x):
-    if x > _T3P8:
-        y, extra, x = HALF_PI, _MOREBITS, -1.0 / x
-    elif x <= 0.66:
-        y, extra = 0.0, 0.0
-    else:
-        y, extra, x = 0.25 * PI, 0.5 * _MOREBITS, (x - 1.0) / (x + 1.0)
+def _atan_ratio(ay, ax):
+    """atan(ay/ax) for finite ay >= 0 and 0 < ax (cephes' reduction and rational form) with one
+    division: the reduced argument is ay/ax, (ay − ax)/(ay + ax) or −ax/ay by the range of the
+    ratio, its ranges chosen by selects rather than branches (where the ratio is random,
+    branches would mispredict about half the time)."""
+    b = np.float64(ay > _T3P8 * ax)
+    m = np.float64(ay > 0.66 * ax) - b
+    s = 1.0 - b - m
+    num = (s * ay + m * (ay - ax)) - b * ax    # exactly one term is not 0
+    den = (s * ax + m * (ay + ax)) + b * ay
+    y = b * HALF_PI + m * (0.25 * PI)
+    extra = b * _MOREBITS + m * (0.5 * _MOREBITS)
+    x = num / den
     z = x * x
     p = (((_ATAN_P[0] * z + _ATAN_P[1]) * z + _ATAN_P[2]) * z + _ATAN_P[3]) * z + _ATAN_P[4]
     q = ((((z + _ATAN_Q[0]) * z + _ATAN_Q[1]) * z + _ATAN_Q[2]) * z + _ATAN_Q[3]) * z + _ATAN_Q[4]
@@ -290,13 +297,14 @@ def _atan_pos(x):
 
 @device
 def _atan2(y, x):
-    """``atan2(y, x)`` within 2 ulp of libm's (faster); libm's own outside the half plane
-    x > 0 (finite) and for NaN."""
-    if 0.0 < x < math.inf and abs(y) < math.inf:
-        return math.copysign(_atan_pos(abs(y) / x), y)
-    if x < 0.0 and -math.inf < x and abs(y) < math.inf and y != 0.0:
-        return math.copysign(PI - _atan_pos(abs(y) / -x), y)
-    return math.atan2(y, x)
+    """``atan2(y, x)`` within 2 ulp of libm's (faster); libm's own on the axes, off finite
+    values and for NaN. Both half planes in one branch-free form (π − atan(|y|/|x|) for x < 0)."""
+    ax = abs(x)
+    ay = abs(y)
+    if not (0.0 < ax < math.inf and ay < math.inf and (x > 0.0 or y != 0.0)):
+        return math.atan2(y, x)
+    a = _atan_ratio(ay, ax)
+    return math.copysign(PI - a if x < 0.0 else a, y)
 
 
 @device
@@ -721,8 +729,9 @@ class WindowPlan:
 
 @device
 def _elevation(x, y, z):
-    d = math.sqrt(x * x + y * y + (z - 1.0) ** 2)
-    return 2.0 * math.asin(min(max(0.5 * d, -1.0), 1.0))
+    """The polar angle of a unit vector above the horizon (z > 0): atan2(|xy|, z), the number
+    of Mitsuba's 2 asin(|w − ẑ|/2) (``_rgl_warp.elevation``) to rounding, branch-free."""
+    return _atan2(math.sqrt(x * x + y * y), z)
 
 
 @device
@@ -741,14 +750,16 @@ def _param_cell(p, vals):
     n = vals.shape[0]
     if n == 1:
         return 0, 0.0
-    # searchsorted(vals, p, "left") - 1, clipped to [0, n - 2]
-    lo, hi = 0, n
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if vals[mid] < p:
-            lo = mid + 1
-        else:
-            hi = mid
+    # searchsorted(vals, p, "left") = the number of values below p, by halving steps of a fixed
+    # count that add or not (a select, not a branch: p is random, the values' order is not)
+    lo = 0
+    step = 1
+    while 2 * step <= n:
+        step *= 2
+    while step > 0:
+        k = min(lo + step, n)
+        lo = k if vals[k - 1] < p else lo
+        step >>= 1
     i = min(max(lo - 1, 0), n - 2)
     w1 = (p - vals[i]) / (vals[i + 1] - vals[i])
     w1 = min(max(w1, 0.0), 1.0)
@@ -809,6 +820,8 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
     res = spectra.shape[1]
     c0 = math.cos(theta_hold)
     s0 = math.sin(theta_hold)
+    inv_w = 1.0 / (w - 1)
+    inv_h = 1.0 / (h - 1)
     n_blocks = (m + BLOCK - 1) // BLOCK
     zi = 0
     zo = 0
@@ -832,15 +845,15 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
                 sx = (-1.0 if ix >= 0.0 else 1.0) if reduction == 4 else sy
                 ix, iy, ox, oy = ix * sx, iy * sy, ox * sx, oy * sy
             mx, my, mz = ix + ox, iy + oy, iz + oz
-            mn = math.sqrt(mx * mx + my * my + mz * mz)
-            mx, my, mz = mx / mn, my / mn, mz / mn
+            mn = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
+            mx, my, mz = mx * mn, my * mn, mz * mn
             th_i = _elevation(ix, iy, iz)
             ph_i = _atan2(iy, ix)
             th_m = _elevation(mx, my, mz)
             ph_m = _atan2(my, mx)
             ui0 = _theta2u(th_i)
-            ui1 = (ph_i + PI) / TWO_PI
-            uy = ((ph_m - ph_i if iso else ph_m) + PI) / TWO_PI
+            ui1 = (ph_i + PI) * INV_TWO_PI
+            uy = ((ph_m - ph_i if iso else ph_m) + PI) * INV_TWO_PI
             um0 = _theta2u(th_m)
             um1 = uy - math.floor(uy)
             # parameter corners (φi, θi): slices s_k, weights w_k (first parameter most significant)
@@ -871,14 +884,14 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
             d01 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px)
             d11 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px + 1)
             e0, e1 = _lerp(d00, d01, fy), _lerp(d10, d11, fy)
-            fx = fx * _lerp(e0, e1, 0.5 * fx) / (w - 1)
+            fx = fx * _lerp(e0, e1, 0.5 * fx) * inv_w
             if px > 0:
                 fx = fx + _lerp(_g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, px - 1),
                                 _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px - 1), fy)
             r0 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, w - 2)
             r1 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, w - 2)
             fx = fx / _lerp(r0, r1, fy)
-            fy = fy * _lerp(r0, r1, 0.5 * fy) / (h - 1)
+            fy = fy * _lerp(r0, r1, 0.5 * fy) * inv_h
             if py > 0:
                 fy = fy + _g2(marg, q0, q1, q2, q3, v0, v1, v2, v3, py - 1)
             # spectra at the warped sample (every corner, as the reader's lookup)
@@ -905,11 +918,8 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
             scale = 1.0
             if jacobian:
                 scale = _bilinear2(ndf, um0, um1) / (4.0 * _bilinear2(sigma, ui0, ui1))
+            if divide:
+                scale = scale / oz
             for c in range(nc):
-                v = spec[lo[c]] * (1.0 - t[c]) + spec[hi[c]] * t[c]
-                if jacobian:
-                    v = v * scale
-                if divide:
-                    v = v / oz
-                out[i, c] = v
+                out[i, c] = (spec[lo[c]] * (1.0 - t[c]) + spec[hi[c]] * t[c]) * scale
     return zi, zo

@@ -443,6 +443,26 @@ def test_he_torrance_quadrature_parts_match_numpy():
             _assert_parity(part, seed=12 + k)
 
 
+def test_modified_he_torrance_profile_on_the_normal_and_at_every_azimuth_matches_numpy():
+    """The compiled Gaussian profile forms φr − φi as one angle: on the normal (whose azimuth
+    is atan2(0, 0) = 0 in the numpy profile, with signed zeros), and at Δφ = 0 and ±π exactly,
+    it is still the numpy profile (the specular part alone, where the profile is the value)."""
+    m = models.create("he-torrance-modified", width_theta=np.radians(14.9), width_phi=np.radians(3.2),
+                      **_HTSG["pyromark"])
+    specular = m.quadrature_parts()[0]
+    phi = np.linspace(-np.pi, np.pi, 73)
+    th = np.radians(30.0)
+    ring = np.stack([np.sin(th) * np.cos(phi), np.sin(th) * np.sin(phi), np.full(phi.size, np.cos(th))], axis=-1)
+    normal = np.array([[0.0, 0.0, 1.0], [-0.0, 0.0, 1.0], [0.0, -0.0, 1.0], [-0.0, -0.0, 1.0]])
+    mirror = ring * np.array([-1.0, -1.0, 1.0])     # Δφ = 0 (the profile's peak azimuth)
+    forward = ring * np.array([1.0, 1.0, 0.5])      # Δφ = ±π
+    forward /= np.linalg.norm(forward, axis=1, keepdims=True)
+    wi = np.concatenate([np.repeat(normal, ring.shape[0], 0), np.tile(ring, (4, 1)), ring, ring])
+    wo = np.concatenate([np.tile(ring, (4, 1)), np.repeat(normal, ring.shape[0], 0), mirror, forward])
+    for brdf in (specular, m):
+        _assert_parity(brdf, wi=wi, wo=wo)
+
+
 def test_zernike_and_he_torrance_add_into_a_sum():
     """Inside a sum the kernels add to what the earlier terms wrote (their ``add`` mode)."""
     zernike = _zernike(ROOT / "tests" / "data" / "zernike-synthetic.coeff.csv")

@@ -1264,6 +1264,30 @@ def test_compiled_evaluation_equals_numpy(kind):
     np.testing.assert_allclose(bsdf.eval(a[3], b, lam)[keep], want[keep], rtol=1e-12, atol=0)
 
 
+def test_compiled_parameter_cell_is_the_readers():
+    """The compiled lookup of a parameter's cell (a search of fixed steps, no branch on the
+    value) is Marginal2D's: searchsorted(left) − 1 clipped to the cells, and its clamped weight,
+    on grids of 2 to 33 values, at nodes, their neighbours, the ends, beyond them and NaN."""
+    import numba
+
+    from brdftab._interp_kernels import _param_cell
+    from brdftab.models.fused import as_device
+
+    cell = as_device(_param_cell)
+    run = numba.njit(lambda vals, x: [cell(v, vals) for v in x])
+    rng = np.random.default_rng(4)
+    for n in (2, 3, 5, 16, 17, 33):
+        vals = np.sort(rng.uniform(0.0, 1.5, n))
+        x = np.concatenate([vals, np.nextafter(vals, -np.inf), np.nextafter(vals, np.inf), [-1.0, 2.0, np.nan],
+                            rng.uniform(-0.1, 1.6, 300)])
+        got = run(vals, x)
+        i = np.clip(np.searchsorted(vals, x, "left") - 1, 0, n - 2)
+        with np.errstate(invalid="ignore"):
+            w = np.clip((x - vals[i]) / (vals[i + 1] - vals[i]), 0.0, 1.0)
+        np.testing.assert_array_equal([g[0] for g in got], np.where(np.isnan(x), 0, i))
+        np.testing.assert_array_equal([g[1] for g in got], w)
+
+
 def test_a_spectral_table_becomes_a_spectral_file_mitsuba_reads(files):
     """A spectral aluminium table (31 wavelengths, 400-700 nm) converted to .bsdf keeps its
     wavelengths ('spectra' + 'wavelengths'); Mitsuba's scalar_spectral variant loads the file and

@@ -659,7 +659,7 @@ def _facet_energy1(w0, w1, w2, k, lam_i, r_i, frames, normals, alpha, g_form, n_
                 oz = 2.0 * c * hz - w2
                 if not (c > 0.0 and oz > 1e-12):
                     continue
-                dwh = wt * (2.0 * np.pi / n_psi) * a * a * t * inv ** 3.0
+                dwh = wt * (2.0 * np.pi / n_psi) * a * a * t * (inv * inv * inv)
                 weight = 4.0 * c * dwh
                 # own_facet at (ωi, ωo)
                 bx, by, bz = w0 + ox, w1 + oy, w2 + oz
