@@ -344,7 +344,30 @@ class Table(BRDF):
             return
         item = self._var.dtype.itemsize
         for key in blocks(self.shape, max(1, int(max_bytes // item)), align=align):
-            yield key, self._read(self._var[key])
+            if len(key) == 1 and key[0].step in (None, 1):
+                yield key, self._rows(key[0].start or 0, key[0].stop)
+            else:
+                yield key, self._read(self._var[key])
+
+    def _rows(self, a: int, b: int) -> np.ndarray:
+        """The stored samples of rows ``a:b`` of the first axis. A table over the memory budget
+        keeps the rows it has read from the start, as stored, in an uncompressed scratch file
+        (:class:`RawRows`): the checks pass over such a table several times, and every later
+        pass maps them from there instead of decoding the file again."""
+        cache = self._raw_rows()
+        if cache is not None and b <= cache.rows:
+            return cache.read(a, b)
+        block = self._read(self._var[a:b])
+        if cache is not None and a == cache.rows:
+            cache.append(block)
+        return block
+
+    def _raw_rows(self):
+        cached = getattr(self, "_raw", None)
+        if cached is None and self.over_budget:
+            cached = self._raw = RawRows(self.shape, self._var.dtype)
+            self.closers.append(cached.close)
+        return cached
 
     #: The rule of :meth:`albedo_rule` covers the table's domain: the albedo integrals report
     #: its projected solid angle as their coverage (see :mod:`brdftab.integrate`).
@@ -835,6 +858,42 @@ def scratch_dir() -> str | None:
     return os.environ.get("BRDFTAB_SCRATCH") or None
 
 
+class RawRows:
+    """Rows of a table's first axis as stored (its dtype, uncompressed), appended in order to an
+    anonymous scratch file (deleted when closed or when the process ends) and read back
+    mapped, copy-on-write: rows ``0:rows`` are held."""
+
+    def __init__(self, shape, dtype):
+        import tempfile
+
+        self.row_shape = tuple(shape[1:])
+        self.dtype = np.dtype(dtype)
+        self.row_bytes = math.prod(self.row_shape) * self.dtype.itemsize
+        self.rows = 0
+        self.file = tempfile.TemporaryFile(dir=scratch_dir())
+
+    def append(self, block) -> None:
+        block = np.ascontiguousarray(block, self.dtype)
+        self.file.seek(self.rows * self.row_bytes)
+        self.file.write(block.tobytes())
+        self.file.flush()
+        self.rows += block.shape[0]
+
+    def read(self, a: int, b: int) -> np.ndarray:
+        import mmap
+
+        if b <= a:
+            return np.empty((0,) + self.row_shape, self.dtype)
+        start, stop = a * self.row_bytes, b * self.row_bytes
+        base = start - start % mmap.ALLOCATIONGRANULARITY
+        mapped = mmap.mmap(self.file.fileno(), stop - base, access=mmap.ACCESS_COPY, offset=base)
+        return np.frombuffer(mapped, self.dtype, count=(b - a) * math.prod(self.row_shape),
+                             offset=start - base).reshape((b - a,) + self.row_shape)
+
+    def close(self) -> None:
+        self.file.close()
+
+
 class OutOfCore:
     """The interpolation data of a table too large for the memory budget, on scratch disk.
 
@@ -872,7 +931,7 @@ class OutOfCore:
             step = max(1, (budget // 2) // per_row)
             for a in range(0, n0, step):
                 b = min(n0, a + step)
-                slab = table._read(table._var[a:b])
+                slab = table._rows(a, b)
                 sub = grid.sliced(a, b)
                 miss = _missing_mask(slab, table._var.attrs)
                 above = sub.node_above_horizon()
@@ -1038,7 +1097,7 @@ def _slab_rows(table, i0):
 def _slab_eval(table, wi, wo, lo, hi):
     """Evaluate a table that is not loaded from the slab ``lo:hi`` of its first axis
     (:func:`_slab_rows`), read from disk: queries that need few rows of a huge table."""
-    slab = table._read(table._var[lo:hi])
+    slab = table._rows(lo, hi)
     grid = table.grid.sliced(lo, hi)
     miss = _missing_mask(slab, table._var.attrs)
     above = grid.node_above_horizon()

@@ -333,3 +333,27 @@ def test_convert_copies_a_table_over_budget_block_by_block(tmp_path, monkeypatch
     with pytest.raises(ValidationError, match="energy"):
         convert(bright, tmp_path / "bad.nc", options={"dtype": "float32"}, progress=False)
     assert not (tmp_path / "bad.nc").exists() and not list(tmp_path.rglob("*partial*"))
+
+
+def test_rows_read_once_are_held_raw_on_scratch_for_the_later_passes(tmp_path, monkeypatch):
+    """A table over the budget decodes its file once: the rows a first pass reads are kept as
+    stored in an uncompressed scratch file, and later passes (the other checks, the
+    interpolation data) get the same samples, bit for bit, without reading the file again."""
+    path = _run(tmp_path, monkeypatch, None, dtype="float32").written[0]
+    monkeypatch.setenv("BRDFTAB_MEMORY", "1M")
+    t = brdftab.open(path)
+    assert t.over_budget
+    reads = []
+    real = t._read
+    monkeypatch.setattr(t, "_read", lambda var: reads.append(1) or real(var))
+    first = [(k, np.array(v)) for k, v in t.iter_blocks(1 << 16)]
+    n = len(reads)
+    assert n == len(first) > 1 and t._raw.rows == t.shape[0]
+    again = list(t.iter_blocks(1 << 16))
+    assert len(reads) == n  # from the scratch copy
+    assert all(ka == kb and a.dtype == b.dtype and np.array_equal(a, b) for (ka, a), (kb, b) in zip(first, again))
+    monkeypatch.delenv("BRDFTAB_MEMORY")
+    fresh = brdftab.open(path)  # and what the file holds
+    assert np.array_equal(np.concatenate([b for _, b in again]), fresh.values)
+    fresh.close()
+    t.close()
