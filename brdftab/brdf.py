@@ -75,6 +75,20 @@ def compiled_enabled() -> bool:
     return _COMPILED[-1]
 
 
+
+def _above_horizon(wi, wo, out, assume_unit):
+    """``(wi, wo, rows)``: the ``(M, 3)`` directions normalized (unless ``assume_unit``: grid
+    nodes, unit and finite by construction) and the rows of the pairs above the horizon, the
+    rows of ``out`` whose pairs are not finite set to NaN (the rest stay 0: below the horizon)."""
+    if assume_unit:
+        return wi, wo, np.flatnonzero((wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
+    wi = _unit(wi, "wi")
+    wo = _unit(wo, "wo")
+    finite = np.isfinite(wi).all(axis=1) & np.isfinite(wo).all(axis=1)
+    out[~finite] = np.nan
+    with np.errstate(invalid="ignore"):
+        return wi, wo, np.flatnonzero(finite & (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
+
 def _unit(w, name):
     """Directions normalized on entry (exactly unit ones are left untouched); non-finite rows
     stay non-finite (they evaluate to NaN); a zero vector is an error."""
@@ -157,15 +171,7 @@ class BRDF:
         if run is not None:
             return _eval_compiled(run, wi, wo, n, assume_unit).reshape(lead + (n,))
         out = np.zeros((wi.shape[0], n))
-        if assume_unit:  # grid nodes: unit and finite by construction
-            above = np.flatnonzero((wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
-        else:
-            wi = _unit(wi, "wi")
-            wo = _unit(wo, "wo")
-            finite = np.isfinite(wi).all(axis=1) & np.isfinite(wo).all(axis=1)
-            out[~finite] = np.nan
-            with np.errstate(invalid="ignore"):
-                above = np.flatnonzero(finite & (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
+        wi, wo, above = _above_horizon(wi, wo, out, assume_unit)
         # Bounded chunks keep the temporaries of long evaluations to a few tens of MB (a BRDF
         # whose every call costs a pass over its data takes larger ones: eval_batch).
         step = self.eval_batch or EVAL_CHUNK
@@ -203,15 +209,7 @@ class BRDF:
         wi = wi.reshape(-1, 3)
         wo = wo.reshape(-1, 3)
         out = np.zeros((wi.shape[0], n, 4, 4))
-        if assume_unit:
-            above = np.flatnonzero((wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
-        else:
-            wi = _unit(wi, "wi")
-            wo = _unit(wo, "wo")
-            finite = np.isfinite(wi).all(axis=1) & np.isfinite(wo).all(axis=1)
-            out[~finite] = np.nan
-            with np.errstate(invalid="ignore"):
-                above = np.flatnonzero(finite & (wi[:, 2] > HORIZON) & (wo[:, 2] > HORIZON))
+        wi, wo, above = _above_horizon(wi, wo, out, assume_unit)
         step = max(1, (self.eval_batch or EVAL_CHUNK) // 16)
         with np.errstate(all="ignore"):
             for start in range(0, above.size, step):

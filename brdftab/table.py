@@ -858,6 +858,24 @@ def scratch_dir() -> str | None:
     return os.environ.get("BRDFTAB_SCRATCH") or None
 
 
+def _map_rows(f, lo, hi, shape, dtype, writable=False) -> np.ndarray:
+    """Rows ``lo:hi`` (each of ``shape``, ``dtype``) of the scratch file ``f`` as an array mapped
+    from it, not copied (read-only, or copy-on-write when ``writable``): the pages leave the
+    process's memory when the array is dropped (unmapped)."""
+    import mmap
+
+    dtype = np.dtype(dtype)
+    row = math.prod(shape) * dtype.itemsize
+    start, stop = lo * row, hi * row
+    if stop <= start:
+        return np.empty((max(0, hi - lo),) + tuple(shape), dtype)
+    base = start - start % mmap.ALLOCATIONGRANULARITY
+    mapped = mmap.mmap(f.fileno(), stop - base, access=mmap.ACCESS_COPY if writable else mmap.ACCESS_READ,
+                       offset=base)
+    return np.frombuffer(mapped, dtype, count=(hi - lo) * math.prod(shape),
+                         offset=start - base).reshape((hi - lo,) + tuple(shape))
+
+
 class RawRows:
     """Rows of a table's first axis as stored (its dtype, uncompressed), appended in order to an
     anonymous scratch file (deleted when closed or when the process ends) and read back
@@ -880,15 +898,7 @@ class RawRows:
         self.rows += block.shape[0]
 
     def read(self, a: int, b: int) -> np.ndarray:
-        import mmap
-
-        if b <= a:
-            return np.empty((0,) + self.row_shape, self.dtype)
-        start, stop = a * self.row_bytes, b * self.row_bytes
-        base = start - start % mmap.ALLOCATIONGRANULARITY
-        mapped = mmap.mmap(self.file.fileno(), stop - base, access=mmap.ACCESS_COPY, offset=base)
-        return np.frombuffer(mapped, self.dtype, count=(b - a) * math.prod(self.row_shape),
-                             offset=start - base).reshape((b - a,) + self.row_shape)
+        return _map_rows(self.file, a, b, self.row_shape, self.dtype, writable=True)
 
     def close(self) -> None:
         self.file.close()
@@ -993,19 +1003,9 @@ class OutOfCore:
 
     @staticmethod
     def _read(f, lo, hi, shape, dtype, item):
-        """Rows ``lo:hi`` of a scratch file as a read-only array mapped from it (not copied):
-        an evaluation window's interpolation touches only the pages its queries' corners are
-        on, and the pages leave the process's memory when the array is dropped (unmapped)."""
-        import mmap
-
-        row = math.prod(shape) * item
-        start, stop = lo * row, hi * row
-        if stop <= start:
-            return np.empty((hi - lo,) + shape, dtype)
-        base = start - start % mmap.ALLOCATIONGRANULARITY
-        mapped = mmap.mmap(f.fileno(), stop - base, access=mmap.ACCESS_READ, offset=base)
-        return np.frombuffer(mapped, dtype, count=(hi - lo) * math.prod(shape),
-                             offset=start - base).reshape((hi - lo,) + shape)
+        """Rows ``lo:hi`` of a scratch file, read-only, mapped (:func:`_map_rows`): an
+        evaluation window's interpolation touches only the pages its queries' corners are on."""
+        return _map_rows(f, lo, hi, shape, dtype)
 
     def _rows(self, lo, hi):
         """(values, valid nodes) of rows ``lo:hi`` of the first axis."""
@@ -1031,17 +1031,9 @@ class OutOfCore:
         if plan is None or plan[0] != isotropic:
             plan = self._plan = (isotropic, self.window_plan(self.grid, isotropic))
         plan = plan[1]
-        cells = plan.cells(wi, wo, check)
-        order = np.argsort(cells, kind="stable")
-        sorted_cells = cells[order]
         total = np.zeros(4, np.int64)
         c = self.shape[-1]
-        for a in range(0, self.n0, self.window):
-            b = min(self.n0, a + self.window)
-            sel = order[np.searchsorted(sorted_cells, a):np.searchsorted(sorted_cells, b)]
-            if sel.size == 0:
-                continue
-            lo, hi = max(0, a - WINDOW_MARGIN), min(self.n0, b + 1 + WINDOW_MARGIN)
+        for sel, lo, hi in self._windows(plan.cells(wi, wo, check)):
             vals, ok = self._rows(lo, hi)
             part = np.empty((sel.size, c))
             part_flags = np.empty(sel.size, np.uint8)
@@ -1051,6 +1043,18 @@ class OutOfCore:
             flags[sel] = part_flags
         return tuple(int(x) for x in total)
 
+    def _windows(self, cells):
+        """``(queries, lo, hi)`` per window of the first axis holding queries: the indices of the
+        queries whose cell (``cells``, its low node; −1: none) lies in the window, and the rows
+        ``lo:hi`` read with it (its margin and the high nodes of its last cells)."""
+        order = np.argsort(cells, kind="stable")
+        sorted_cells = cells[order]
+        for a in range(0, self.n0, self.window):
+            b = min(self.n0, a + self.window)
+            sel = order[np.searchsorted(sorted_cells, a):np.searchsorted(sorted_cells, b)]
+            if sel.size:
+                yield sel, max(0, a - WINDOW_MARGIN), min(self.n0, b + 1 + WINDOW_MARGIN)
+
     def interpolate(self, idx) -> np.ndarray:
         """Values ``[M, C]`` at fractional indices ``idx`` (one array per axis, as
         :meth:`Grid.locate` gives them), NaN where the first one is not finite."""
@@ -1059,14 +1063,7 @@ class OutOfCore:
         cell = np.full(m, -1, np.intp)
         finite = np.isfinite(idx[0])
         cell[finite] = np.clip(np.floor(idx[0][finite]), 0, self.n0 - 1).astype(np.intp)
-        order = np.argsort(cell, kind="stable")
-        sorted_cells = cell[order]
-        for a in range(0, self.n0, self.window):
-            b = min(self.n0, a + self.window)
-            sel = order[np.searchsorted(sorted_cells, a):np.searchsorted(sorted_cells, b)]
-            if sel.size == 0:
-                continue
-            lo, hi = max(0, a - WINDOW_MARGIN), min(self.n0, b + 1 + WINDOW_MARGIN)
+        for sel, lo, hi in self._windows(cell):
             vals, ok = self._rows(lo, hi)
             valid = np.broadcast_to(ok[..., None], vals.shape)
             miss = self._missing(lo, hi)
