@@ -939,21 +939,25 @@ class OutOfCore:
             # per row: as stored, in float64, the missing mask; node masks and the ghosts' indices
             per_row = self.row * (table._var.dtype.itemsize + 8 + 1) + self.nodes * 48
             step = max(1, (budget // 2) // per_row)
+            buf = np.empty(min(step, n0) * self.row)  # the float64 rows, reused slab after slab
             for a in range(0, n0, step):
                 b = min(n0, a + step)
                 slab = table._rows(a, b)
                 sub = grid.sliced(a, b)
                 miss = _missing_mask(slab, table._var.attrs)
                 above = sub.node_above_horizon()
-                vals, ok = _horizon_ghosts(slab, above, sub, miss, axes=inner)
+                vals = buf[:slab.size].reshape(slab.shape)
+                np.copyto(vals, slab, casting="unsafe")
+                del slab
+                vals, ok = _horizon_ghosts(vals, above, sub, miss, axes=inner, inplace=True)
                 if miss is not None and self.missing is None:
                     self.missing = tempfile.TemporaryFile(dir=folder)
                     self.missing.write(np.zeros(a * self.row, np.bool_).tobytes())
                 if self.missing is not None:
-                    self.missing.write(np.zeros(slab.shape, np.bool_).tobytes() if miss is None
+                    self.missing.write(np.zeros(vals.shape, np.bool_).tobytes() if miss is None
                                        else np.ascontiguousarray(miss).tobytes())
-                self.values.write(np.ascontiguousarray(vals, np.float64).tobytes())
-                self.ok.write(np.ascontiguousarray(ok, np.bool_).tobytes())
+                self.values.write(memoryview(vals))  # C-contiguous float64: written without a copy
+                self.ok.write(memoryview(np.ascontiguousarray(ok, np.bool_)))
             if first in present and present[-1] == first and n0 >= 3:
                 self._first_axis_pass(first, budget)
             for f in (self.values, self.ok, self.missing):
