@@ -39,7 +39,7 @@ from .. import __version__
 from ..channels import Layout
 from ..errors import FormatError
 from . import FileFormat, register
-from .astm import _table, native_grid, prepare_scattered
+from .astm import _number, _table, native_grid, prepare_scattered
 
 __all__ = ["read_csv", "write_csv", "QUANTITY_COLUMNS"]
 
@@ -193,10 +193,6 @@ def read_csv(path):
     if comments:
         provenance["comment"] = "\n".join(comments)
     return _table(ang, out, layout, provenance)
-
-
-def _number(x: float) -> str:
-    return repr(float(x))
 
 
 def write_csv(table, path, **_):

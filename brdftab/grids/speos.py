@@ -27,10 +27,9 @@ import numpy as np
 
 from ..errors import ParameterError
 from ..geometry import sph_to_vec, vec_to_sph
-from ..params import Param
 from .axis import HALF_PI, LONG_NAMES, TWO_PI, Axis, check_range
 from .base import Grid, read_coordinate, register
-from .specular_polar import _circle_axis
+from .specular_polar import _angles, _circle_axis
 
 __all__ = ["SpeosGrid", "speos_directions", "speos_coords"]
 
@@ -53,10 +52,6 @@ def speos_coords(wi, wo, rotation_at_pole=0.0):
     pi_ = np.where(ti == 0.0, np.pi - rotation_at_pole, pi_)
     to, po = vec_to_sph(wo)
     return ti, np.mod(np.pi - pi_, TWO_PI), to, np.mod(po - pi_ - np.pi, TWO_PI)
-
-
-def _angles(name, doc):
-    return Param(name, "angles", doc, default=None, angle=True, units="deg")
 
 
 @register
