@@ -17,6 +17,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _mutate import mutations
 
 import brdftab
 from brdftab.errors import BrdftabWarning, FormatError
@@ -361,25 +362,11 @@ def test_mutated_files_give_a_format_error_or_a_table_never_a_crash():
     from brdftab.formats.lighttools import parse_lighttools
 
     lines = HAND.splitlines()
-    rng = np.random.default_rng(7)
     junk = ["", "-1", "0", "1e999", "nan", "TIS", "DataEnd", "DataBegin", "AOI", "x", "3.5", "TrisX", "999999"]
     errors = 0
-    for _ in range(150):
-        mutated = list(lines)
-        for _ in range(rng.integers(1, 4)):
-            k = int(rng.integers(len(mutated)))
-            words = mutated[k].split()
-            if words:
-                words[int(rng.integers(len(words)))] = str(rng.choice(junk))
-            op = rng.integers(3)
-            if op == 0:
-                mutated[k] = " ".join(words)
-            elif op == 1:
-                del mutated[k]
-            else:
-                mutated.insert(k, " ".join(words))
+    for text in mutations(lines, junk, 150):
         try:
-            parse_lighttools("m.bsdf", "\n".join(mutated))
+            parse_lighttools("m.bsdf", text)
         except FormatError as exc:
             errors += 1
             assert "\n" not in str(exc) and str(exc).startswith("m.bsdf: line ")
