@@ -134,7 +134,7 @@ def test_mitsuba_loads_the_written_file_and_evaluates_what_brdftab_interpolates(
     ours = back.eval_mueller(wi, wo)
     rel = np.abs(got - ours) / ours[..., :1, :1]
     print(f"Mitsuba measured_polarized vs brdftab's interpolation of the file: max |ΔM_ij|/M00 = {rel.max():.2g}")
-    assert rel.max() < 2e-5  # float32 interpolation weights
+    assert rel.max() < 1e-5  # float32 interpolation weights (measured 2.5e-6)
     # and brdftab's interpolation of the file is that of the table written (float32 samples)
     src = ggx_table.eval_mueller(wi, wo)
     assert (np.abs(src - ours) / src[..., :1, :1]).max() < 1e-6
@@ -356,4 +356,4 @@ def test_a_spec_of_the_registrys_microfacet_model_tabulates_to_a_file_mitsuba_re
     rc_norm = np.abs(got[:, 0] / got[:, 0, :1, :1] - rc / rc[..., :1, :1]).max(axis=(-2, -1))
     print(f"registry microfacet -> .pbsdf, Mitsuba vs model: median |dM00|/M00 {np.median(m00):.2g}, median max "
           f"|d(Mij/M00)| {np.median(norm):.2g} (vs roughconductor {np.median(rc_norm):.2g})")
-    assert np.median(m00) < 0.01 and np.median(norm) < 1.5e-3 and np.median(rc_norm) < 1.5e-3
+    assert np.median(m00) < 0.008 and np.median(norm) < 1.2e-3 and np.median(rc_norm) < 1.2e-3  # 0.52 %, 7.8e-4
