@@ -699,9 +699,9 @@ class WindowPlan:
     """The compiled interpolation of a table held in windows of its first axis (a table over
     the memory budget, its interpolation data in scratch files mapped window by window):
     :meth:`cells` gives each pair's cell along that axis, :meth:`run` interpolates pairs whose
-    cells lie in a window from that window's values ``[rows × nodes per row, C]`` (float64) and
-    node validity ``[rows × nodes per row, 1]``, exactly as :class:`TablePlan` does from the
-    whole table."""
+    cells lie in a window from that window's values ``[rows × nodes per row, C]`` (float32 for
+    a float32 table, else float64) and node validity ``[rows × nodes per row, 1]``, exactly as
+    :class:`TablePlan` does from the whole table."""
 
     def __init__(self, grid, isotropic):
         _plan_grid(self, grid, isotropic)

@@ -27,7 +27,7 @@ import xarray as xr
 
 from .channels import Layout
 from .errors import BrdftabError, FormatError, ParameterError
-from .table import Table, _horizon_ghosts, _interp_last, check_memory, make_table
+from .table import Table, _horizon_ghosts, _interp_dtype, _interp_last, check_memory, make_table
 
 __all__ = ["MUELLER_VAR", "ROW_DIM", "COL_DIM", "BASIS_ATTR", "CIRCULAR_ATTR", "MITSUBA_BASIS", "MITSUBA_CIRCULAR",
            "THETA_D_NUDGE", "is_polarized", "mueller_at_nodes", "mueller_variable", "check_mueller_variable",
@@ -168,7 +168,9 @@ def _view(table):
         return cached
     m = mueller_values(table)
     c = m.shape[-3]
-    flat = m.reshape(table.grid.shape + (c * 16,))
+    # in the table's interpolation dtype (float32 samples exactly as stored: their horizon
+    # ghosts are then the f table's, and eval equals M00 of eval_mueller)
+    flat = m.reshape(table.grid.shape + (c * 16,)).astype(_interp_dtype(table._var.dtype), copy=False)
     names = tuple(f"m{i}{j}_{k}" for k in range(c) for i in range(4) for j in range(4))
     view = make_table(flat, table.grid, Layout(names))
     view.__class__ = _MuellerView

@@ -710,7 +710,10 @@ def _horizon_ghosts(values, above, grid, missing=None, axes=None, inplace=False,
     the one before. The stored table is unchanged. Only the nodes next to the horizon are
     computed (about 1 % of a MERL grid). Returns ``(values, valid_nodes)``. ``axes``: the ghost
     axes to pass along (default :data:`GHOST_AXES`; a subset runs those passes alone).
-    ``inplace``: write the ghosts into ``values`` (float64) instead of a copy. ``floor``: the
+    ``inplace``: write the ghosts into ``values`` instead of a copy. The ghosts take the dtype
+    of float32 values (they are estimates: a float32 table's interpolation data stays half the
+    size, in memory and on scratch disk, and the two agree exactly); other values are copied
+    to float64. ``floor``: the
     lowest ghost value, per channel when an array (the Mueller elements of a polarized table
     other than M00 may be negative: ``-inf``).
     """
@@ -734,7 +737,7 @@ def _horizon_ghosts(values, above, grid, missing=None, axes=None, inplace=False,
             if where[0].size == 0:
                 continue
             if vals is None:
-                vals = values if inplace else np.array(values, dtype=float, copy=True)
+                vals = values if inplace else np.array(values, dtype=_interp_dtype(values.dtype), copy=True)
             g = where[a]
             j1, j2, j3 = g - step, g - 2 * step, g - 3 * step
             at = lambda j: where[:a] + (j,) + where[a + 1:]  # noqa: E731
@@ -752,6 +755,12 @@ def _horizon_ghosts(values, above, grid, missing=None, axes=None, inplace=False,
             vals[where] = np.maximum(np.where(has3[:, None], quad, lin), floor)
             ok[where] = True
     return (values if vals is None else vals), ok
+
+
+def _interp_dtype(dtype) -> np.dtype:
+    """The dtype of a table's interpolation data (values with horizon ghosts): float32 for a
+    float32 table, float64 otherwise."""
+    return np.dtype(np.float32) if np.dtype(dtype) == np.float32 else np.dtype(np.float64)
 
 
 def _shifted(mask, step, axis):
@@ -908,7 +917,8 @@ class OutOfCore:
     """The interpolation data of a table too large for the memory budget, on scratch disk.
 
     Built once, window by window of the first axis, as the whole-table interpolation has them
-    (:func:`_horizon_ghosts`): the values with their horizon ghosts (float64), the valid nodes
+    (:func:`_horizon_ghosts`): the values with their horizon ghosts (in the table's
+    interpolation dtype, :func:`_interp_dtype`: float32 for a float32 table), the valid nodes
     and the declared missing samples, in anonymous temporary files (deleted when closed, or
     when the process ends however it ends). The ghosts along the other axes come from each
     window alone; those along the first axis (θh, θi: the last ghost axis) in a second sweep over
@@ -928,6 +938,7 @@ class OutOfCore:
         self.nodes = math.prod(self.shape[1:-1])  # nodes per row of the first axis
         self.row = self.nodes * self.shape[-1]     # samples per row
         folder = scratch_dir()
+        self.dtype = dtype = _interp_dtype(table._var.dtype)
         self.values = tempfile.TemporaryFile(dir=folder)
         self.ok = tempfile.TemporaryFile(dir=folder)
         self.missing = None
@@ -936,10 +947,11 @@ class OutOfCore:
         inner = tuple(a for a in present if a != first)
         try:
             # pass 1: read as stored, ghosts along the other axes (row by row independent)
-            # per row: as stored, in float64, the missing mask; node masks and the ghosts' indices
-            per_row = self.row * (table._var.dtype.itemsize + 8 + 1) + self.nodes * 48
+            # per row: as stored, in the interpolation dtype, the missing mask; node masks and the
+            # ghosts' indices
+            per_row = self.row * (table._var.dtype.itemsize + dtype.itemsize + 1) + self.nodes * 48
             step = max(1, (budget // 2) // per_row)
-            buf = np.empty(min(step, n0) * self.row)  # the float64 rows, reused slab after slab
+            buf = np.empty(min(step, n0) * self.row, dtype)  # the rows, reused slab after slab
             for a in range(0, n0, step):
                 b = min(n0, a + step)
                 slab = table._rows(a, b)
@@ -956,7 +968,7 @@ class OutOfCore:
                 if self.missing is not None:
                     self.missing.write(np.zeros(vals.shape, np.bool_).tobytes() if miss is None
                                        else np.ascontiguousarray(miss).tobytes())
-                self.values.write(memoryview(vals))  # C-contiguous float64: written without a copy
+                self.values.write(memoryview(vals))  # C-contiguous: written without a copy
                 self.ok.write(memoryview(np.ascontiguousarray(ok, np.bool_)))
             if first in present and present[-1] == first and n0 >= 3:
                 self._first_axis_pass(first, budget)
@@ -966,8 +978,8 @@ class OutOfCore:
         except BaseException:
             self.close()
             raise
-        # a window: its rows of values (8 bytes a sample) and node masks, in half the budget
-        self.window = max(1, (budget // 2) // (self.row * 10) - 1 - 2 * WINDOW_MARGIN)
+        # a window: its rows of values and node masks, in half the budget
+        self.window = max(1, (budget // 2) // (self.row * (dtype.itemsize + 2)) - 1 - 2 * WINDOW_MARGIN)
 
     def _first_axis_pass(self, first, budget) -> None:
         """Ghosts along the first axis: independent for every node of a row, so made over all
@@ -978,10 +990,11 @@ class OutOfCore:
         n0, nodes, c = self.n0, self.nodes, self.shape[-1]
         # per node of a column block: its values over the rows, the corner values and node masks
         # and indices the ghost pass makes
-        per_node = n0 * (c * 8 * 3 + 48)
+        size = self.dtype.itemsize
+        per_node = n0 * (c * size * 3 + 48)
         cols = max(1, (budget // 2) // per_node)
         columns = SimpleNamespace(dims=(first, "node"), axes=(self.grid.axes[0], None))
-        files = [(self.values, 8 * c, np.float64, (c,)), (self.ok, 1, np.bool_, ())]
+        files = [(self.values, size * c, self.dtype, (c,)), (self.ok, 1, np.bool_, ())]
         if self.missing is not None:
             files.append((self.missing, c, np.bool_, (c,)))
         for c0 in range(0, nodes, cols):
@@ -1000,7 +1013,7 @@ class OutOfCore:
             _, ok = _horizon_ghosts(vals, ok, columns, parts[2] if len(parts) > 2 else None, axes=(first,),
                                     inplace=True)
             for r in np.flatnonzero((ok != before).any(axis=1)):  # rows that got ghosts
-                self.values.seek((r * nodes + c0) * 8 * c)
+                self.values.seek((r * nodes + c0) * size * c)
                 self.values.write(np.ascontiguousarray(vals[r]).tobytes())
                 self.ok.seek(r * nodes + c0)
                 self.ok.write(np.ascontiguousarray(ok[r]).tobytes())
@@ -1013,7 +1026,7 @@ class OutOfCore:
 
     def _rows(self, lo, hi):
         """(values, valid nodes) of rows ``lo:hi`` of the first axis."""
-        return (self._read(self.values, lo, hi, self.shape[1:], np.float64, 8),
+        return (self._read(self.values, lo, hi, self.shape[1:], self.dtype, self.dtype.itemsize),
                 self._read(self.ok, lo, hi, self.shape[1:-1], np.bool_, 1))
 
     def _missing(self, lo, hi):
