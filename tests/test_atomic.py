@@ -11,11 +11,9 @@ from collections import namedtuple
 from pathlib import Path
 
 import pytest
-from click.testing import CliRunner
 
 import brdftab
 from brdftab import _atomic, formats
-from brdftab.cli import main
 from brdftab.grids import RusinkiewiczGrid
 from brdftab.table import tabulate
 from _cli import cli as _cli, one_error as _one_error, names as _names

@@ -735,7 +735,6 @@ def test_energy_and_albedo_over_a_sliver_of_the_hemisphere_warn_not_pass():
                    only=("energy", "albedo"))
     assert [o.status for o in r.outcomes] == ["pass", "pass"]
     # an excess over 1 is an excess even on a part of the hemisphere: a lower bound above 1
-    import xarray as xr
 
     t = _mostly_missing("analytic")
     ds = t.ds.copy()

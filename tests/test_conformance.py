@@ -367,7 +367,7 @@ def test_lighttools_text_bsdf_is_read_by_its_content(tmp_path, name):
     # [theta_i, phi_i, theta_o (radial), phi_o (azimuth), C]: each azimuth row of the file is a column here
     assert np.array_equal(table.values[0, 0, :, :, 0], [[0.1, 0.3], [0.2, 0.4]])
     path.write_text(LIGHTTOOLS.replace("Symmetry Asymmetric", "Symmetry PlaneSymmetrical"))
-    with pytest.raises(FormatError, match="one side of the plane of incidence") as info:
+    with pytest.raises(FormatError, match="one side of the plane of incidence"):
         brdftab.open(path)  # azimuths 0 and 180 lie on both sides of the plane of incidence (90 / 270)
     r = _cli("info", path)
     assert r.exit_code == 2 and r.stderr.count("\n") == 1 and "PlaneSymmetrical" in r.stderr and "Traceback" not in r.stderr

@@ -160,7 +160,7 @@ def test_every_format_declares_its_options_and_refuses_unknown_ones(name):
 def _toy_format(lossy: bool):
     """A toy text format: the header, then the table's values; ``lossy`` drops every other value
     when reading (a broken reader the contract must catch)."""
-    from brdftab.table import Table, make_table
+    from brdftab.table import make_table
 
     magic = b"TOYBRDF\n"
 

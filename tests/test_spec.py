@@ -1,17 +1,14 @@
 """Spec files that are valid: nesting, spectral sampling, grids, paths, a byte-order mark."""
 
 import json
-from pathlib import Path
 
 import numpy as np
 import pytest
-from click.testing import CliRunner
 
 import brdftab
-from brdftab.cli import main
 from brdftab.pipeline import run
 from brdftab.spec import load_spec
-from _cli import TINY_GRID, spec as _spec, cli as _cli
+from _cli import spec as _spec, cli as _cli
 
 
 def write(tmp_path, text, name="s.toml"):

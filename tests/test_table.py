@@ -406,7 +406,6 @@ def test_table_with_horizon_nodes_interpolates_sanely():
 # -- evaluation in slabs ---------------------------------------------------------------------------
 
 def test_slab_evaluation_equals_whole_table_evaluation(tmp_path, monkeypatch):
-    from brdftab import table as table_mod
 
     path = tmp_path / "t.nc"
     brdftab.save(tabulate(PLAIN_GGX, merl_grid(), progress=False), path)

@@ -39,7 +39,7 @@ import importlib
 import importlib.util
 import os
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
@@ -49,7 +49,7 @@ from .._atomic import atomic_path
 from .._locks import check_target, register_store
 from .._signals import held_signals
 from ..errors import BrdftabError, BrdftabWarning, FormatError, ParameterError, shown
-from ..params import parse_params, suggest
+from ..params import parse_params
 from ..registry import Registry
 
 __all__ = ["FileFormat", "FORMATS", "register", "detect", "read", "write", "write_prepared", "format_for",

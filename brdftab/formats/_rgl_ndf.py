@@ -13,7 +13,6 @@ import numpy as np
 
 from ..brdf import BRDF
 from ..channels import luminance_weights as _luminance_weights
-from ..errors import BrdftabError
 from ._rgl_warp import TWO_PI, bilinear, elevation, phi2u, sph, theta2u, u2theta
 
 __all__ = ["BACKSCATTER_BOUND", "model_ndf", "backscatter_ndf", "backscatter_bound", "sigma_table"]

@@ -52,7 +52,7 @@ import numpy as np
 from ..channels import ChannelValue, Layout, combine_layouts
 from ..errors import ParameterError
 from ..optical import MATERIAL, resolve_index
-from ..params import Param, parse_params, suggest
+from ..params import Param, parse_params
 from ..registry import Registry
 from .distributions import (beckmann_D_scalar, beckmann_lambda_scalar, d_beckmann, d_ggx, ggx_D_scalar,
                             ggx_lambda_scalar, lambda_beckmann, lambda_ggx)
