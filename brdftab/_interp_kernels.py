@@ -725,13 +725,46 @@ class WindowPlan:
 
 # ------------------------------------------------------------------------------------------
 # RGL .bsdf files (Mitsuba 3's `measured`)
+#
+# The pairs go through in blocks of RGL_BLOCK, each in passes over all the block's pairs at
+# once (structure of arrays: one scratch row per quantity), so that every pass is a plain loop
+# without branches the compiler turns into SIMD instructions: the coordinates, the parameter
+# cells, the gathers of the warp's tables per parameter corner, the warp's inversion, the
+# gathers of the spectra, the NDF/σ factor, the output. The rare pairs that are not unit
+# vectors or not finite are settled in scalar code between the passes (:func:`_load`).
+
+#: Pairs per block of the RGL evaluation (its scratch rows stay within the core's L2 cache).
+RGL_BLOCK = 256
+# rows of a block's float scratch: status (0 evaluated; -1 the scalar code decides; else
+# _load's), u(θi), u(φi), u(θm), u(φm[−φi]), θi, φi, cosθo (held), then the corners' weights
+# (4), the warp's gathered values (9: data at its cell's four nodes, cond before the cell and
+# at the row's end on both rows, marg), the warped sample's cell fractions (2), the factor
+# (NDF/σ, 1/cosθo) and the spectra (one row per stored channel)
+_R_ST, _R_UI0, _R_UI1, _R_UM0, _R_UM1, _R_TH, _R_PH, _R_OZ = 0, 1, 2, 3, 4, 5, 6, 7
+_R_W = 8
+_R_ACC = 12
+_R_TX, _R_TY, _R_SCALE = 21, 22, 23
+_R_SPEC = 24
+# rows of its integer scratch: the corners' slices (4), the warp cell (px, py), the spectra's
+# cell (jx, jy), the parameter cells (φi, θi)
+_I_Q, _I_PX, _I_PY, _I_JX, _I_JY, _I_A, _I_B = 0, 4, 5, 6, 7, 8, 9
 
 
 @device
 def _elevation(x, y, z):
     """The polar angle of a unit vector above the horizon (z > 0): atan2(|xy|, z), the number
     of Mitsuba's 2 asin(|w − ẑ|/2) (``_rgl_warp.elevation``) to rounding, branch-free."""
-    return _atan2(math.sqrt(x * x + y * y), z)
+    return _atan_ratio(math.sqrt(x * x + y * y), z)
+
+
+@device
+def _atan2_sel(y, x):
+    """``atan2(y, x)`` of finite values by selects only (:func:`_atan2`'s number; on the axes
+    libm's: ±π/2, and ±0 or ±π at y = x = 0 by the signs of the zeros)."""
+    ax = abs(x)
+    ay = abs(y)
+    a = _atan_ratio(ay, 1.0 if (ax == 0.0 and ay == 0.0) else ax)  # atan(y/0) = π/2 exactly
+    return math.copysign(PI - a if math.copysign(1.0, x) < 0.0 else a, y)
 
 
 @device
@@ -767,6 +800,33 @@ def _param_cell(p, vals):
 
 
 @device
+def _param_cells(vals, p, cnt, idx, wgt):
+    """:func:`_param_cell` of ``p[:cnt]`` into ``idx``, ``wgt``: the same halving steps, each a
+    pass over all the values (so that the passes vectorize)."""
+    n = vals.shape[0]
+    if n == 1:
+        for j in range(cnt):
+            idx[j] = 0
+            wgt[j] = 0.0
+        return
+    for j in range(cnt):
+        idx[j] = 0
+    step = 1
+    while 2 * step <= n:
+        step *= 2
+    while step > 0:
+        for j in range(cnt):
+            k = min(idx[j] + step, n)
+            idx[j] = k if vals[k - 1] < p[j] else idx[j]
+        step >>= 1
+    for j in range(cnt):
+        i = min(max(idx[j] - 1, 0), n - 2)
+        w1 = (p[j] - vals[i]) / (vals[i + 1] - vals[i])
+        idx[j] = i
+        wgt[j] = min(max(w1, 0.0), 1.0)
+
+
+@device
 def _bilinear2(table, x, y):
     """A raw bilinear table ``[H, W]`` at ``(x, y)`` of the unit square (``Marginal2D.eval``)."""
     h, w = table.shape
@@ -779,147 +839,238 @@ def _bilinear2(table, x, y):
 
 
 @device
-def _g3(t, s0, s1, s2, s3, w0, w1, w2, w3, iy, ix):
-    """Σ w_c · t[s_c, iy, ix] over the corners of non-zero weight (``Marginal2D._gather``)."""
-    out = 0.0
-    if w0 != 0.0:
-        out += w0 * t[s0, iy, ix]
-    if w1 != 0.0:
-        out += w1 * t[s1, iy, ix]
-    if w2 != 0.0:
-        out += w2 * t[s2, iy, ix]
-    if w3 != 0.0:
-        out += w3 * t[s3, iy, ix]
-    return out
-
-
-@device
-def _g2(t, s0, s1, s2, s3, w0, w1, w2, w3, iy):
-    out = 0.0
-    if w0 != 0.0:
-        out += w0 * t[s0, iy]
-    if w1 != 0.0:
-        out += w1 * t[s1, iy]
-    if w2 != 0.0:
-        out += w2 * t[s2, iy]
-    if w3 != 0.0:
-        out += w3 * t[s3, iy]
-    return out
+def _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso, reduction, need_phi):
+    """``(u(θi), u(φi), u(θm), u(φm[−φi]), θi, φi, cosθo)`` of a pair of unit vectors above the
+    horizon, with the hold of ωo beyond θ_hold and the mirroring of reduced files (selects
+    only). Without ``need_phi`` (an isotropic file whose φi is used only in φm − φi), φm − φi
+    is one angle, atan2(wi × m, wi · m) in the xy plane, and u(φi) and φi are 0."""
+    low = hold and oz < c0
+    r = math.sqrt(ox * ox + oy * oy)
+    k = s0 / (r if low else 1.0)
+    ox = ox * k if low else ox
+    oy = oy * k if low else oy
+    oz = c0 if low else oz
+    if not iso and reduction >= 2:
+        # mulsign_neg: wi to y <= 0 (and x <= 0 for a quarter); a half turns both axes
+        sy = -1.0 if iy >= 0.0 else 1.0
+        sx = (-1.0 if ix >= 0.0 else 1.0) if reduction == 4 else sy
+        ix, iy, ox, oy = ix * sx, iy * sy, ox * sx, oy * sy
+    mx, my, mz = ix + ox, iy + oy, iz + oz
+    mn = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
+    mx, my, mz = mx * mn, my * mn, mz * mn
+    th_i = _elevation(ix, iy, iz)
+    th_m = _elevation(mx, my, mz)
+    if need_phi:
+        ph_i = _atan2_sel(iy, ix)
+        ph_m = _atan2_sel(my, mx)
+        uy = ((ph_m - ph_i if iso else ph_m) + PI) * INV_TWO_PI
+    else:
+        # φi of wi on the normal is atan2(±0, ±0): 0 (x = +0) or ±π (x = −0), the azimuth of ±x̂
+        on_axis = ix == 0.0 and iy == 0.0
+        rx = math.copysign(1.0, ix) if on_axis else ix
+        ry = 0.0 if on_axis else iy
+        ph_i = 0.0
+        uy = (_atan2_sel(rx * my - ry * mx, rx * mx + ry * my) + PI) * INV_TWO_PI
+    return (_theta2u(th_i), (ph_i + PI) * INV_TWO_PI, _theta2u(th_m), uy - np.floor(uy), th_i, ph_i, oz)
 
 
 @kernel(parallel=True)
 def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, p_phi, p_theta, st_phi, st_theta,
-             data, cond, marg, spectra, ndf, sigma, lo, hi, t, out):
+             data, cond, marg, spectra, ndf, sigma, sigma_phi, lo, hi, t, out):
     """f (``divide``: f·cosθo / cosθo, with ``hold``) or f·cosθo of an RGL file at every pair,
-    into ``out[M, n]`` (channels ``lo``, ``hi``, weight ``t`` of the stored spectra). Returns
-    ``(wi zero vectors, wo zero vectors)``."""
+    into ``out[M, n]`` (channels ``lo``, ``hi``, weight ``t`` of the stored spectra).
+    ``sigma_phi``: σ depends on φi (else its rows are equal and it is read on its first).
+    Returns ``(wi zero vectors, wo zero vectors)``."""
     m = wi.shape[0]
     nc = lo.shape[0]
     ns = spectra.shape[3]
     h, w = data.shape[1], data.shape[2]
     res = spectra.shape[1]
+    n_phi = p_phi.shape[0]
+    n_theta = p_theta.shape[0]
+    # corners over (φi, θi), first parameter most significant; one or two per parameter
+    nq = (2 if n_phi > 1 else 1) * (2 if n_theta > 1 else 1)
+    need_phi = n_phi > 1 or not iso or (jacobian and sigma_phi)
     c0 = math.cos(theta_hold)
     s0 = math.sin(theta_hold)
     inv_w = 1.0 / (w - 1)
     inv_h = 1.0 / (h - 1)
-    n_blocks = (m + BLOCK - 1) // BLOCK
+    data_f = data.reshape(data.size)
+    cond_f = cond.reshape(cond.size)
+    marg_f = marg.reshape(marg.size)
+    spec_f = spectra.reshape(spectra.size)
+    n_blocks = (m + RGL_BLOCK - 1) // RGL_BLOCK
     zi = 0
     zo = 0
     for b in prange(n_blocks):
-        spec = np.empty(ns)
-        for i in range(b * BLOCK, min(m, (b + 1) * BLOCK)):
-            ix, iy, iz, ox, oy, oz, st = _load(wi, wo, i, check)
-            if st != 0:
-                di, do = _settle(out, i, nc, st)
-                zi += di
-                zo += do
-                continue
-            if hold and oz < c0:
-                r = math.hypot(ox, oy)
-                ox *= s0 / r
-                oy *= s0 / r
-                oz = c0
-            if not iso and reduction >= 2:
-                # mulsign_neg: wi to y <= 0 (and x <= 0 for a quarter); a half turns both axes
-                sy = -1.0 if iy >= 0.0 else 1.0
-                sx = (-1.0 if ix >= 0.0 else 1.0) if reduction == 4 else sy
-                ix, iy, ox, oy = ix * sx, iy * sy, ox * sx, oy * sy
-            mx, my, mz = ix + ox, iy + oy, iz + oz
-            mn = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
-            mx, my, mz = mx * mn, my * mn, mz * mn
-            th_i = _elevation(ix, iy, iz)
-            ph_i = _atan2(iy, ix)
-            th_m = _elevation(mx, my, mz)
-            ph_m = _atan2(my, mx)
-            ui0 = _theta2u(th_i)
-            ui1 = (ph_i + PI) * INV_TWO_PI
-            uy = ((ph_m - ph_i if iso else ph_m) + PI) * INV_TWO_PI
-            um0 = _theta2u(th_m)
-            um1 = uy - math.floor(uy)
-            # parameter corners (φi, θi): slices s_k, weights w_k (first parameter most significant)
-            a, wa = _param_cell(ph_i, p_phi)
-            bb, wb = _param_cell(th_i, p_theta)
-            sa0, sa1 = a * st_phi, (a + 1) * st_phi
-            sb0, sb1 = bb * st_theta, (bb + 1) * st_theta
-            if p_phi.shape[0] == 1:
-                sa0, sa1 = 0, 0
-            if p_theta.shape[0] == 1:
-                sb0, sb1 = 0, 0
-            wa0, wa1 = 1.0 - wa, wa
-            if p_phi.shape[0] == 1:
-                wa0, wa1 = 1.0, 0.0
-            wb0, wb1 = 1.0 - wb, wb
-            if p_theta.shape[0] == 1:
-                wb0, wb1 = 1.0, 0.0
-            q0, q1, q2, q3 = sa0 + sb0, sa0 + sb1, sa1 + sb0, sa1 + sb1
-            v0, v1, v2, v3 = 1.0 * wa0 * wb0, 1.0 * wa0 * wb1, 1.0 * wa1 * wb0, 1.0 * wa1 * wb1
-            # vndf.invert(u_m)
-            sxx = min(max(um0, 0.0), 1.0) * (w - 1)
-            syy = min(max(um1, 0.0), 1.0) * (h - 1)
+        start = b * RGL_BLOCK
+        cnt = min(m, start + RGL_BLOCK) - start
+        sc = np.empty((_R_SPEC + ns, RGL_BLOCK))
+        si = np.empty((10, RGL_BLOCK), np.int64)
+        a_i = wi[start:start + cnt]
+        a_o = wo[start:start + cnt]
+        # pass 1: coordinates (pairs that are not plainly unit and finite: -1, settled below)
+        n_odd = 0
+        for j in range(cnt):
+            ix, iy, iz = a_i[j, 0], a_i[j, 1], a_i[j, 2]
+            ox, oy, oz = a_o[j, 0], a_o[j, 1], a_o[j, 2]
+            if check:
+                odd = not (abs(math.sqrt(ix * ix + iy * iy + iz * iz) - 1.0) <= 1e-12
+                           and abs(math.sqrt(ox * ox + oy * oy + oz * oz) - 1.0) <= 1e-12)
+            else:
+                s = ix + iy + iz + ox + oy + oz
+                odd = not (s - s == 0.0)  # a component is not finite (or their sum overflows)
+            st = 0.0 if (iz > HORIZON and oz > HORIZON) else 2.0
+            st = -1.0 if odd else st
+            good = st == 0.0
+            # pairs not evaluated take the normal's coordinates (their cells stay in the tables)
+            ix, iy, iz = (ix, iy, iz) if good else (0.0, 0.0, 1.0)
+            ox, oy, oz = (ox, oy, oz) if good else (0.0, 0.0, 1.0)
+            ui0, ui1, um0, um1, th_i, ph_i, ozh = _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso,
+                                                                   reduction, need_phi)
+            sc[_R_ST, j] = st
+            sc[_R_UI0, j] = ui0
+            sc[_R_UI1, j] = ui1
+            sc[_R_UM0, j] = um0
+            sc[_R_UM1, j] = um1
+            sc[_R_TH, j] = th_i
+            sc[_R_PH, j] = ph_i
+            sc[_R_OZ, j] = ozh
+            n_odd += 1 if odd else 0
+        if n_odd:
+            for j in range(cnt):
+                if sc[_R_ST, j] != -1.0:
+                    continue
+                ix, iy, iz, ox, oy, oz, st = _load(wi, wo, start + j, check)
+                if st == 0 and not (math.isfinite(ix) and math.isfinite(iy) and math.isfinite(iz)
+                                    and math.isfinite(ox) and math.isfinite(oy) and math.isfinite(oz)):
+                    st = 1  # (unchecked input) not finite: NaN
+                sc[_R_ST, j] = st
+                if st == 0:
+                    ui0, ui1, um0, um1, th_i, ph_i, ozh = _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0,
+                                                                           iso, reduction, need_phi)
+                    sc[_R_UI0, j] = ui0
+                    sc[_R_UI1, j] = ui1
+                    sc[_R_UM0, j] = um0
+                    sc[_R_UM1, j] = um1
+                    sc[_R_TH, j] = th_i
+                    sc[_R_PH, j] = ph_i
+                    sc[_R_OZ, j] = ozh
+        # pass 2: parameter cells and corners (slices q, weights)
+        _param_cells(p_phi, sc[_R_PH], cnt, si[_I_A], sc[_R_W + 2])
+        _param_cells(p_theta, sc[_R_TH], cnt, si[_I_B], sc[_R_W + 3])
+        for j in range(cnt):
+            a = si[_I_A, j]
+            bb = si[_I_B, j]
+            wa = sc[_R_W + 2, j]
+            wb = sc[_R_W + 3, j]
+            if n_phi > 1 and n_theta > 1:
+                si[_I_Q, j] = a * st_phi + bb * st_theta
+                si[_I_Q + 1, j] = a * st_phi + (bb + 1) * st_theta
+                si[_I_Q + 2, j] = (a + 1) * st_phi + bb * st_theta
+                si[_I_Q + 3, j] = (a + 1) * st_phi + (bb + 1) * st_theta
+                sc[_R_W, j] = (1.0 - wa) * (1.0 - wb)
+                sc[_R_W + 1, j] = (1.0 - wa) * wb
+                sc[_R_W + 2, j] = wa * (1.0 - wb)
+                sc[_R_W + 3, j] = wa * wb
+            elif n_theta > 1:
+                si[_I_Q, j] = bb * st_theta
+                si[_I_Q + 1, j] = (bb + 1) * st_theta
+                sc[_R_W, j] = 1.0 - wb
+                sc[_R_W + 1, j] = wb
+            elif n_phi > 1:
+                si[_I_Q, j] = a * st_phi
+                si[_I_Q + 1, j] = (a + 1) * st_phi
+                sc[_R_W, j] = 1.0 - wa
+                sc[_R_W + 1, j] = wa
+            else:
+                si[_I_Q, j] = 0
+                sc[_R_W, j] = 1.0
+        # pass 3: the warp's cell at u_m and its tables there, summed over the corners
+        for j in range(cnt):
+            sxx = min(max(sc[_R_UM0, j], 0.0), 1.0) * (w - 1)
+            syy = min(max(sc[_R_UM1, j], 0.0), 1.0) * (h - 1)
             px = min(int(sxx), w - 2)
             py = min(int(syy), h - 2)
-            fx, fy = sxx - px, syy - py
-            d00 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py, px)
-            d10 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py, px + 1)
-            d01 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px)
-            d11 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px + 1)
-            e0, e1 = _lerp(d00, d01, fy), _lerp(d10, d11, fy)
+            si[_I_PX, j] = px
+            si[_I_PY, j] = py
+            sc[_R_TX, j] = sxx - px
+            sc[_R_TY, j] = syy - py
+            for r in range(9):
+                sc[_R_ACC + r, j] = 0.0
+        for c in range(nq):
+            for j in range(cnt):
+                q = si[_I_Q + c, j]
+                v = sc[_R_W + c, j]
+                px = si[_I_PX, j]
+                py = si[_I_PY, j]
+                r0 = (q * h + py) * w + px
+                sc[_R_ACC, j] += v * data_f[r0]
+                sc[_R_ACC + 1, j] += v * data_f[r0 + 1]
+                sc[_R_ACC + 2, j] += v * data_f[r0 + w]
+                sc[_R_ACC + 3, j] += v * data_f[r0 + w + 1]
+                k0 = (q * h + py) * (w - 1)
+                pm = max(px - 1, 0)
+                sc[_R_ACC + 4, j] += v * cond_f[k0 + pm]
+                sc[_R_ACC + 5, j] += v * cond_f[k0 + (w - 1) + pm]
+                sc[_R_ACC + 6, j] += v * cond_f[k0 + (w - 2)]
+                sc[_R_ACC + 7, j] += v * cond_f[k0 + (w - 1) + (w - 2)]
+                sc[_R_ACC + 8, j] += v * marg_f[q * (h - 1) + max(py - 1, 0)]
+        # pass 4: vndf.invert(u_m), and the spectra's cell at the warped sample
+        for j in range(cnt):
+            fx = sc[_R_TX, j]
+            fy = sc[_R_TY, j]
+            e0 = _lerp(sc[_R_ACC, j], sc[_R_ACC + 2, j], fy)
+            e1 = _lerp(sc[_R_ACC + 1, j], sc[_R_ACC + 3, j], fy)
             fx = fx * _lerp(e0, e1, 0.5 * fx) * inv_w
-            if px > 0:
-                fx = fx + _lerp(_g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, px - 1),
-                                _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px - 1), fy)
-            r0 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, w - 2)
-            r1 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, w - 2)
+            fx = fx + _lerp(sc[_R_ACC + 4, j], sc[_R_ACC + 5, j], fy) if si[_I_PX, j] > 0 else fx
+            r0 = sc[_R_ACC + 6, j]
+            r1 = sc[_R_ACC + 7, j]
             fx = fx / _lerp(r0, r1, fy)
             fy = fy * _lerp(r0, r1, 0.5 * fy) * inv_h
-            if py > 0:
-                fy = fy + _g2(marg, q0, q1, q2, q3, v0, v1, v2, v3, py - 1)
-            # spectra at the warped sample (every corner, as the reader's lookup)
+            fy = fy + sc[_R_ACC + 8, j] if si[_I_PY, j] > 0 else fy
             x = min(max(fx, 0.0), 1.0) * (res - 1)
             y = min(max(fy, 0.0), 1.0) * (res - 1)
-            jx = min(int(x), res - 2)
-            jy = min(int(y), res - 2)
-            tx, ty = x - jx, y - jy
+            jx = max(min(int(x), res - 2), 0)  # (0 for a NaN sample: a cell in the table)
+            jy = max(min(int(y), res - 2), 0)
+            si[_I_JX, j] = jx
+            si[_I_JY, j] = jy
+            sc[_R_TX, j] = x - jx
+            sc[_R_TY, j] = y - jy
+        # pass 5: the spectra there, summed over the corners (every corner, as the reader's lookup)
+        for k in range(ns):
+            for j in range(cnt):
+                sc[_R_SPEC + k, j] = 0.0
+        row = res * ns
+        for c in range(nq):
             for k in range(ns):
-                spec[k] = 0.0
-            for corner in range(4):
-                q = q0 if corner == 0 else (q1 if corner == 1 else (q2 if corner == 2 else q3))
-                wq = v0 if corner == 0 else (v1 if corner == 1 else (v2 if corner == 2 else v3))
-                if wq == 0.0:
-                    continue  # adds 0 (the stored spectra are finite: the reader checks them)
-                for k in range(ns):
-                    g00 = spectra[q, jy, jx, k]
-                    g10 = spectra[q, jy, jx + 1, k]
-                    g01 = spectra[q, jy + 1, jx, k]
-                    g11 = spectra[q, jy + 1, jx + 1, k]
+                for j in range(cnt):
+                    g = ((si[_I_Q + c, j] * res + si[_I_JY, j]) * res + si[_I_JX, j]) * ns + k
+                    tx = sc[_R_TX, j]
+                    g00 = spec_f[g]
+                    g10 = spec_f[g + ns]
+                    g01 = spec_f[g + row]
+                    g11 = spec_f[g + row + ns]
                     l0 = g00 + tx * (g10 - g00)
                     l1 = g01 + tx * (g11 - g01)
-                    spec[k] = spec[k] + wq * (l0 + ty * (l1 - l0))
+                    sc[_R_SPEC + k, j] += sc[_R_W + c, j] * (l0 + sc[_R_TY, j] * (l1 - l0))
+        # pass 6: the factor and the output channels
+        for j in range(cnt):
             scale = 1.0
             if jacobian:
-                scale = _bilinear2(ndf, um0, um1) / (4.0 * _bilinear2(sigma, ui0, ui1))
+                um1 = sc[_R_UI1, j] if sigma_phi else 0.0
+                scale = _bilinear2(ndf, sc[_R_UM0, j], sc[_R_UM1, j]) / (4.0 * _bilinear2(sigma, sc[_R_UI0, j], um1))
             if divide:
-                scale = scale / oz
-            for c in range(nc):
-                out[i, c] = (spec[lo[c]] * (1.0 - t[c]) + spec[hi[c]] * t[c]) * scale
+                scale = scale / sc[_R_OZ, j]
+            sc[_R_SCALE, j] = scale
+        for c in range(nc):
+            l_c, h_c, t_c = lo[c], hi[c], t[c]
+            for j in range(cnt):
+                out[start + j, c] = (sc[_R_SPEC + l_c, j] * (1.0 - t_c) + sc[_R_SPEC + h_c, j] * t_c) * sc[_R_SCALE, j]
+        for j in range(cnt):
+            st = sc[_R_ST, j]
+            if st != 0.0:
+                di, do = _settle(out, start + j, nc, int(st))
+                zi += di
+                zo += do
     return zi, zo
