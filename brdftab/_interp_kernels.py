@@ -838,7 +838,7 @@ def _bilinear2(table, x, y):
     return _lerp(_lerp(table[iy, ix], table[iy, ix + 1], tx), _lerp(table[iy + 1, ix], table[iy + 1, ix + 1], tx), ty)
 
 
-@device
+@device(inline=True)  # inlined on numba's IR: LLVM finds it too large to inline, and its loop then stays scalar
 def _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso, reduction, need_phi):
     """``(u(θi), u(φi), u(θm), u(φm[−φi]), θi, φi, cosθo)`` of a pair of unit vectors above the
     horizon, with the hold of ωo beyond θ_hold and the mirroring of reduced files (selects
@@ -909,11 +909,19 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
         si = np.empty((10, RGL_BLOCK), np.int64)
         a_i = wi[start:start + cnt]
         a_o = wo[start:start + cnt]
-        # pass 1: coordinates (pairs that are not plainly unit and finite: -1, settled below)
+        # pass 1: coordinates (pairs that are not plainly unit and finite: -1, settled below);
+        # the directions first copied into rows (loads of every third number do not vectorize)
+        for j in range(cnt):
+            sc[_R_ACC, j] = a_i[j, 0]
+            sc[_R_ACC + 1, j] = a_i[j, 1]
+            sc[_R_ACC + 2, j] = a_i[j, 2]
+            sc[_R_ACC + 3, j] = a_o[j, 0]
+            sc[_R_ACC + 4, j] = a_o[j, 1]
+            sc[_R_ACC + 5, j] = a_o[j, 2]
         n_odd = 0
         for j in range(cnt):
-            ix, iy, iz = a_i[j, 0], a_i[j, 1], a_i[j, 2]
-            ox, oy, oz = a_o[j, 0], a_o[j, 1], a_o[j, 2]
+            ix, iy, iz = sc[_R_ACC, j], sc[_R_ACC + 1, j], sc[_R_ACC + 2, j]
+            ox, oy, oz = sc[_R_ACC + 3, j], sc[_R_ACC + 4, j], sc[_R_ACC + 5, j]
             if check:
                 odd = not (abs(math.sqrt(ix * ix + iy * iy + iz * iz) - 1.0) <= 1e-12
                            and abs(math.sqrt(ox * ox + oy * oy + oz * oz) - 1.0) <= 1e-12)
