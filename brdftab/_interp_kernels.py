@@ -799,10 +799,15 @@ def _param_cell(p, vals):
     return i, w1
 
 
+#: Parameter axes up to this many values are searched by counting the values below p (every
+#: value compared: a loop over the pairs the compiler vectorizes); longer ones by halving steps.
+COUNT_SEARCH = 32
+
+
 @device
-def _param_cells(vals, p, cnt, idx, wgt):
-    """:func:`_param_cell` of ``p[:cnt]`` into ``idx``, ``wgt``: the same halving steps, each a
-    pass over all the values (so that the passes vectorize)."""
+def _param_cells(vals, p, cnt, idx, wgt, lo_v, hi_v):
+    """:func:`_param_cell` of ``p[:cnt]`` into ``idx``, ``wgt`` (``lo_v``, ``hi_v``: scratch for
+    the cell's end values), in passes over all the values."""
     n = vals.shape[0]
     if n == 1:
         for j in range(cnt):
@@ -811,31 +816,74 @@ def _param_cells(vals, p, cnt, idx, wgt):
         return
     for j in range(cnt):
         idx[j] = 0
-    step = 1
-    while 2 * step <= n:
-        step *= 2
-    while step > 0:
-        for j in range(cnt):
-            k = min(idx[j] + step, n)
-            idx[j] = k if vals[k - 1] < p[j] else idx[j]
-        step >>= 1
+    if n <= COUNT_SEARCH:
+        # searchsorted(vals, p, "left") = the number of values below p
+        for k in range(n):
+            v = vals[k]
+            for j in range(cnt):
+                idx[j] += 1 if v < p[j] else 0
+    else:
+        step = 1
+        while 2 * step <= n:
+            step *= 2
+        while step > 0:
+            for j in range(cnt):
+                k = min(idx[j] + step, n)
+                idx[j] = k if vals[np.uint64(k - 1)] < p[j] else idx[j]
+            step >>= 1
     for j in range(cnt):
         i = min(max(idx[j] - 1, 0), n - 2)
-        w1 = (p[j] - vals[i]) / (vals[i + 1] - vals[i])
         idx[j] = i
+        lo_v[j] = vals[np.uint64(i)]
+        hi_v[j] = vals[np.uint64(i + 1)]
+    for j in range(cnt):
+        w1 = (p[j] - lo_v[j]) / (hi_v[j] - lo_v[j])
         wgt[j] = min(max(w1, 0.0), 1.0)
 
 
-@device
+@device(inline=True)
 def _bilinear2(table, x, y):
-    """A raw bilinear table ``[H, W]`` at ``(x, y)`` of the unit square (``Marginal2D.eval``)."""
+    """A raw bilinear table ``[H, W]`` at ``(x, y)`` of the unit square (``Marginal2D.eval``),
+    in float64 whatever the table's type."""
     h, w = table.shape
     x = min(max(x, 0.0), 1.0) * (w - 1)
     y = min(max(y, 0.0), 1.0) * (h - 1)
     ix = min(int(x), w - 2)
     iy = min(int(y), h - 2)
     tx, ty = x - ix, y - iy
-    return _lerp(_lerp(table[iy, ix], table[iy, ix + 1], tx), _lerp(table[iy + 1, ix], table[iy + 1, ix + 1], tx), ty)
+    a, b = np.float64(table[np.uint64(iy), np.uint64(ix)]), np.float64(table[np.uint64(iy), np.uint64(ix + 1)])
+    c, d = np.float64(table[np.uint64(iy + 1), np.uint64(ix)]), np.float64(table[np.uint64(iy + 1), np.uint64(ix + 1)])
+    return _lerp(_lerp(a, b, tx), _lerp(c, d, tx), ty)
+
+
+@device(inline=True)
+def _warp_at(data_f, cond_f, marg_f, q, px, py, h, w):
+    """The warp's numbers of slice ``q`` at cell ``(px, py)``: data at the cell's four nodes
+    (x fastest), cond before the cell and at the row's end on rows py and py + 1 (before the
+    cell: at max(px − 1, 0)), marg before the row (at max(py − 1, 0)). (Indices are unsigned:
+    they are not negative, and numba then leaves out its test for indices from the end.)"""
+    g = (q * h + py) * w + px
+    k = (q * h + py) * (w - 1)
+    pm = max(px - 1, 0)
+    m = q * (h - 1) + max(py - 1, 0)
+    return (np.float64(data_f[np.uint64(g)]), np.float64(data_f[np.uint64(g + 1)]),
+            np.float64(data_f[np.uint64(g + w)]), np.float64(data_f[np.uint64(g + w + 1)]),
+            np.float64(cond_f[np.uint64(k + pm)]), np.float64(cond_f[np.uint64(k + (w - 1) + pm)]),
+            np.float64(cond_f[np.uint64(k + (w - 2))]), np.float64(cond_f[np.uint64(k + (w - 1) + (w - 2))]),
+            np.float64(marg_f[np.uint64(m)]))
+
+
+@device(inline=True)
+def _spectrum_at(spec_f, g, ns, row, tx, ty):
+    """The spectra's bilinear interpolant at flat index ``g`` (node (jx, jy) of a slice, one
+    channel; ``row`` numbers a row), fractions ``tx``, ``ty``."""
+    g00 = np.float64(spec_f[np.uint64(g)])
+    g10 = np.float64(spec_f[np.uint64(g + ns)])
+    g01 = np.float64(spec_f[np.uint64(g + row)])
+    g11 = np.float64(spec_f[np.uint64(g + row + ns)])
+    l0 = g00 + tx * (g10 - g00)
+    l1 = g01 + tx * (g11 - g01)
+    return l0 + ty * (l1 - l0)
 
 
 @device(inline=True)  # inlined on numba's IR: LLVM finds it too large to inline, and its loop then stays scalar
@@ -965,8 +1013,8 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
                     sc[_R_PH, j] = ph_i
                     sc[_R_OZ, j] = ozh
         # pass 2: parameter cells and corners (slices q, weights)
-        _param_cells(p_phi, sc[_R_PH], cnt, si[_I_A], sc[_R_W + 2])
-        _param_cells(p_theta, sc[_R_TH], cnt, si[_I_B], sc[_R_W + 3])
+        _param_cells(p_phi, sc[_R_PH], cnt, si[_I_A], sc[_R_W + 2], sc[_R_ACC], sc[_R_ACC + 1])
+        _param_cells(p_theta, sc[_R_TH], cnt, si[_I_B], sc[_R_W + 3], sc[_R_ACC], sc[_R_ACC + 1])
         for j in range(cnt):
             a = si[_I_A, j]
             bb = si[_I_B, j]
@@ -994,7 +1042,8 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
             else:
                 si[_I_Q, j] = 0
                 sc[_R_W, j] = 1.0
-        # pass 3: the warp's cell at u_m and its tables there, summed over the corners
+        # pass 3: the warp's cell at u_m, then its tables there summed over the corners (one
+        # pair at a time: the gathers are scalar loads either way, the sums stay in registers)
         for j in range(cnt):
             sxx = min(max(sc[_R_UM0, j], 0.0), 1.0) * (w - 1)
             syy = min(max(sc[_R_UM1, j], 0.0), 1.0) * (h - 1)
@@ -1004,26 +1053,41 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
             si[_I_PY, j] = py
             sc[_R_TX, j] = sxx - px
             sc[_R_TY, j] = syy - py
-            for r in range(9):
-                sc[_R_ACC + r, j] = 0.0
-        for c in range(nq):
-            for j in range(cnt):
-                q = si[_I_Q + c, j]
+        for j in range(cnt):
+            px = si[_I_PX, j]
+            py = si[_I_PY, j]
+            v0 = sc[_R_W, j]
+            if nq == 2:  # an isotropic file's two θi slices (or φi's of a file with one θi)
+                v1 = sc[_R_W + 1, j]
+                a0, a1, a2, a3, a4, a5, a6, a7, a8 = _warp_at(data_f, cond_f, marg_f, si[_I_Q, j], px, py, h, w)
+                b0, b1, b2, b3, b4, b5, b6, b7, b8 = _warp_at(data_f, cond_f, marg_f, si[_I_Q + 1, j], px, py, h, w)
+                sc[_R_ACC, j] = v0 * a0 + v1 * b0
+                sc[_R_ACC + 1, j] = v0 * a1 + v1 * b1
+                sc[_R_ACC + 2, j] = v0 * a2 + v1 * b2
+                sc[_R_ACC + 3, j] = v0 * a3 + v1 * b3
+                sc[_R_ACC + 4, j] = v0 * a4 + v1 * b4
+                sc[_R_ACC + 5, j] = v0 * a5 + v1 * b5
+                sc[_R_ACC + 6, j] = v0 * a6 + v1 * b6
+                sc[_R_ACC + 7, j] = v0 * a7 + v1 * b7
+                sc[_R_ACC + 8, j] = v0 * a8 + v1 * b8
+                continue
+            a0, a1, a2, a3, a4, a5, a6, a7, a8 = _warp_at(data_f, cond_f, marg_f, si[_I_Q, j], px, py, h, w)
+            a0, a1, a2, a3, a4, a5, a6, a7, a8 = (v0 * a0, v0 * a1, v0 * a2, v0 * a3, v0 * a4, v0 * a5, v0 * a6,
+                                                  v0 * a7, v0 * a8)
+            for c in range(1, nq):
                 v = sc[_R_W + c, j]
-                px = si[_I_PX, j]
-                py = si[_I_PY, j]
-                r0 = (q * h + py) * w + px
-                sc[_R_ACC, j] += v * data_f[r0]
-                sc[_R_ACC + 1, j] += v * data_f[r0 + 1]
-                sc[_R_ACC + 2, j] += v * data_f[r0 + w]
-                sc[_R_ACC + 3, j] += v * data_f[r0 + w + 1]
-                k0 = (q * h + py) * (w - 1)
-                pm = max(px - 1, 0)
-                sc[_R_ACC + 4, j] += v * cond_f[k0 + pm]
-                sc[_R_ACC + 5, j] += v * cond_f[k0 + (w - 1) + pm]
-                sc[_R_ACC + 6, j] += v * cond_f[k0 + (w - 2)]
-                sc[_R_ACC + 7, j] += v * cond_f[k0 + (w - 1) + (w - 2)]
-                sc[_R_ACC + 8, j] += v * marg_f[q * (h - 1) + max(py - 1, 0)]
+                b0, b1, b2, b3, b4, b5, b6, b7, b8 = _warp_at(data_f, cond_f, marg_f, si[_I_Q + c, j], px, py, h, w)
+                a0, a1, a2, a3, a4, a5, a6, a7, a8 = (a0 + v * b0, a1 + v * b1, a2 + v * b2, a3 + v * b3, a4 + v * b4,
+                                                      a5 + v * b5, a6 + v * b6, a7 + v * b7, a8 + v * b8)
+            sc[_R_ACC, j] = a0
+            sc[_R_ACC + 1, j] = a1
+            sc[_R_ACC + 2, j] = a2
+            sc[_R_ACC + 3, j] = a3
+            sc[_R_ACC + 4, j] = a4
+            sc[_R_ACC + 5, j] = a5
+            sc[_R_ACC + 6, j] = a6
+            sc[_R_ACC + 7, j] = a7
+            sc[_R_ACC + 8, j] = a8
         # pass 4: vndf.invert(u_m), and the spectra's cell at the warped sample
         for j in range(cnt):
             fx = sc[_R_TX, j]
@@ -1046,31 +1110,36 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
             sc[_R_TX, j] = x - jx
             sc[_R_TY, j] = y - jy
         # pass 5: the spectra there, summed over the corners (every corner, as the reader's lookup)
-        for k in range(ns):
-            for j in range(cnt):
-                sc[_R_SPEC + k, j] = 0.0
         row = res * ns
-        for c in range(nq):
-            for k in range(ns):
-                for j in range(cnt):
-                    g = ((si[_I_Q + c, j] * res + si[_I_JY, j]) * res + si[_I_JX, j]) * ns + k
-                    tx = sc[_R_TX, j]
-                    g00 = spec_f[g]
-                    g10 = spec_f[g + ns]
-                    g01 = spec_f[g + row]
-                    g11 = spec_f[g + row + ns]
-                    l0 = g00 + tx * (g10 - g00)
-                    l1 = g01 + tx * (g11 - g01)
-                    sc[_R_SPEC + k, j] += sc[_R_W + c, j] * (l0 + sc[_R_TY, j] * (l1 - l0))
-        # pass 6: the factor and the output channels
+        sl = res * row
         for j in range(cnt):
-            scale = 1.0
-            if jacobian:
-                um1 = sc[_R_UI1, j] if sigma_phi else 0.0
-                scale = _bilinear2(ndf, sc[_R_UM0, j], sc[_R_UM1, j]) / (4.0 * _bilinear2(sigma, sc[_R_UI0, j], um1))
-            if divide:
-                scale = scale / sc[_R_OZ, j]
-            sc[_R_SCALE, j] = scale
+            si[_I_JX, j] = (si[_I_JY, j] * res + si[_I_JX, j]) * ns  # the cell's flat offset in a slice
+        for k in range(ns):
+            if nq == 2:
+                for j in range(cnt):
+                    cell = si[_I_JX, j] + k
+                    tx = sc[_R_TX, j]
+                    ty = sc[_R_TY, j]
+                    sc[_R_SPEC + k, j] = (sc[_R_W, j] * _spectrum_at(spec_f, si[_I_Q, j] * sl + cell, ns, row, tx, ty)
+                                          + sc[_R_W + 1, j] * _spectrum_at(spec_f, si[_I_Q + 1, j] * sl + cell, ns,
+                                                                           row, tx, ty))
+                continue
+            for j in range(cnt):
+                sc[_R_SPEC + k, j] = sc[_R_W, j] * _spectrum_at(spec_f, si[_I_Q, j] * sl + si[_I_JX, j] + k, ns, row,
+                                                                sc[_R_TX, j], sc[_R_TY, j])
+            for c in range(1, nq):
+                for j in range(cnt):
+                    sc[_R_SPEC + k, j] += sc[_R_W + c, j] * _spectrum_at(spec_f, si[_I_Q + c, j] * sl + si[_I_JX, j] + k,
+                                                                         ns, row, sc[_R_TX, j], sc[_R_TY, j])
+        # pass 6: the factor (its tables' gathers, then the divisions in a loop that vectorizes)
+        # and the output channels
+        if jacobian:
+            for j in range(cnt):
+                sc[_R_ACC, j] = _bilinear2(ndf, sc[_R_UM0, j], sc[_R_UM1, j])
+                sc[_R_ACC + 1, j] = _bilinear2(sigma, sc[_R_UI0, j], sc[_R_UI1, j] if sigma_phi else 0.0)
+        for j in range(cnt):
+            scale = sc[_R_ACC, j] / (4.0 * sc[_R_ACC + 1, j]) if jacobian else 1.0
+            sc[_R_SCALE, j] = scale / sc[_R_OZ, j] if divide else scale
         for c in range(nc):
             l_c, h_c, t_c = lo[c], hi[c], t[c]
             for j in range(cnt):
