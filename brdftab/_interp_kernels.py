@@ -777,28 +777,6 @@ def _lerp(a, b, t):
     return a + t * (b - a)
 
 
-@device
-def _param_cell(p, vals):
-    """``(index, weight of index + 1)`` of parameter ``p`` (``Marginal2D._corners``)."""
-    n = vals.shape[0]
-    if n == 1:
-        return 0, 0.0
-    # searchsorted(vals, p, "left") = the number of values below p, by halving steps of a fixed
-    # count that add or not (a select, not a branch: p is random, the values' order is not)
-    lo = 0
-    step = 1
-    while 2 * step <= n:
-        step *= 2
-    while step > 0:
-        k = min(lo + step, n)
-        lo = k if vals[k - 1] < p else lo
-        step >>= 1
-    i = min(max(lo - 1, 0), n - 2)
-    w1 = (p - vals[i]) / (vals[i + 1] - vals[i])
-    w1 = min(max(w1, 0.0), 1.0)
-    return i, w1
-
-
 #: Parameter axes up to this many values are searched by counting the values below p (every
 #: value compared: a loop over the pairs the compiler vectorizes); longer ones by halving steps.
 COUNT_SEARCH = 32
@@ -806,8 +784,10 @@ COUNT_SEARCH = 32
 
 @device
 def _param_cells(vals, p, cnt, idx, wgt, lo_v, hi_v):
-    """:func:`_param_cell` of ``p[:cnt]`` into ``idx``, ``wgt`` (``lo_v``, ``hi_v``: scratch for
-    the cell's end values), in passes over all the values."""
+    """The cells of parameters ``p[:cnt]`` on the axis ``vals`` as ``Marginal2D._corners``
+    finds them: into ``idx`` the index (searchsorted(vals, p, "left") − 1 clipped to the
+    cells), into ``wgt`` the clamped weight of index + 1 (``lo_v``, ``hi_v``: scratch for the
+    cell's end values); each step a pass over all the values (so that the passes vectorize)."""
     n = vals.shape[0]
     if n == 1:
         for j in range(cnt):
@@ -887,11 +867,10 @@ def _spectrum_at(spec_f, g, ns, row, tx, ty):
 
 
 @device(inline=True)  # inlined on numba's IR: LLVM finds it too large to inline, and its loop then stays scalar
-def _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso, reduction, need_phi):
+def _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso, reduction):
     """``(u(θi), u(φi), u(θm), u(φm[−φi]), θi, φi, cosθo)`` of a pair of unit vectors above the
     horizon, with the hold of ωo beyond θ_hold and the mirroring of reduced files (selects
-    only). Without ``need_phi`` (an isotropic file whose φi is used only in φm − φi), φm − φi
-    is one angle, atan2(wi × m, wi · m) in the xy plane, and u(φi) and φi are 0."""
+    only)."""
     low = hold and oz < c0
     r = math.sqrt(ox * ox + oy * oy)
     k = s0 / (r if low else 1.0)
@@ -908,26 +887,17 @@ def _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso, reduction, need_
     mx, my, mz = mx * mn, my * mn, mz * mn
     th_i = _elevation(ix, iy, iz)
     th_m = _elevation(mx, my, mz)
-    if need_phi:
-        ph_i = _atan2_sel(iy, ix)
-        ph_m = _atan2_sel(my, mx)
-        uy = ((ph_m - ph_i if iso else ph_m) + PI) * INV_TWO_PI
-    else:
-        # φi of wi on the normal is atan2(±0, ±0): 0 (x = +0) or ±π (x = −0), the azimuth of ±x̂
-        on_axis = ix == 0.0 and iy == 0.0
-        rx = math.copysign(1.0, ix) if on_axis else ix
-        ry = 0.0 if on_axis else iy
-        ph_i = 0.0
-        uy = (_atan2_sel(rx * my - ry * mx, rx * mx + ry * my) + PI) * INV_TWO_PI
+    ph_i = _atan2_sel(iy, ix)
+    ph_m = _atan2_sel(my, mx)
+    uy = ((ph_m - ph_i if iso else ph_m) + PI) * INV_TWO_PI
     return (_theta2u(th_i), (ph_i + PI) * INV_TWO_PI, _theta2u(th_m), uy - np.floor(uy), th_i, ph_i, oz)
 
 
 @kernel(parallel=True)
 def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, p_phi, p_theta, st_phi, st_theta,
-             data, cond, marg, spectra, ndf, sigma, sigma_phi, lo, hi, t, out):
+             data, cond, marg, spectra, ndf, sigma, lo, hi, t, out):
     """f (``divide``: f·cosθo / cosθo, with ``hold``) or f·cosθo of an RGL file at every pair,
     into ``out[M, n]`` (channels ``lo``, ``hi``, weight ``t`` of the stored spectra).
-    ``sigma_phi``: σ depends on φi (else its rows are equal and it is read on its first).
     Returns ``(wi zero vectors, wo zero vectors)``."""
     m = wi.shape[0]
     nc = lo.shape[0]
@@ -938,7 +908,6 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
     n_theta = p_theta.shape[0]
     # corners over (φi, θi), first parameter most significant; one or two per parameter
     nq = (2 if n_phi > 1 else 1) * (2 if n_theta > 1 else 1)
-    need_phi = n_phi > 1 or not iso or (jacobian and sigma_phi)
     c0 = math.cos(theta_hold)
     s0 = math.sin(theta_hold)
     inv_w = 1.0 / (w - 1)
@@ -983,7 +952,7 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
             ix, iy, iz = (ix, iy, iz) if good else (0.0, 0.0, 1.0)
             ox, oy, oz = (ox, oy, oz) if good else (0.0, 0.0, 1.0)
             ui0, ui1, um0, um1, th_i, ph_i, ozh = _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso,
-                                                                   reduction, need_phi)
+                                                                   reduction)
             sc[_R_ST, j] = st
             sc[_R_UI0, j] = ui0
             sc[_R_UI1, j] = ui1
@@ -1004,7 +973,7 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
                 sc[_R_ST, j] = st
                 if st == 0:
                     ui0, ui1, um0, um1, th_i, ph_i, ozh = _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0,
-                                                                           iso, reduction, need_phi)
+                                                                           iso, reduction)
                     sc[_R_UI0, j] = ui0
                     sc[_R_UI1, j] = ui1
                     sc[_R_UM0, j] = um0
@@ -1136,7 +1105,7 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
         if jacobian:
             for j in range(cnt):
                 sc[_R_ACC, j] = _bilinear2(ndf, sc[_R_UM0, j], sc[_R_UM1, j])
-                sc[_R_ACC + 1, j] = _bilinear2(sigma, sc[_R_UI0, j], sc[_R_UI1, j] if sigma_phi else 0.0)
+                sc[_R_ACC + 1, j] = _bilinear2(sigma, sc[_R_UI0, j], sc[_R_UI1, j])
         for j in range(cnt):
             scale = sc[_R_ACC, j] / (4.0 * sc[_R_ACC + 1, j]) if jacobian else 1.0
             sc[_R_SCALE, j] = scale / sc[_R_OZ, j] if divide else scale

@@ -281,9 +281,6 @@ class RGLBSDF(BRDF):
                 data=np.ascontiguousarray(v.data), cond=np.ascontiguousarray(v.cond),
                 marg=np.ascontiguousarray(v.marg), spectra=np.ascontiguousarray(self._spectra),
                 ndf=np.ascontiguousarray(self._ndf.data[0]), sigma=np.ascontiguousarray(self._sigma.data[0]))
-            s = self._kernel_tables["sigma"]
-            # σ's rows (over φi) all equal: it is read on its first, and φi is not needed for it
-            self._kernel_tables["sigma_phi"] = not bool(np.all(s == s[:1]))
         return self._kernel_tables
 
     def _compiled(self, wi, wo, lo, hi, t, check, hold):
@@ -299,7 +296,7 @@ class RGLBSDF(BRDF):
         for rows, a, b in contiguous_pairs(wi, wo):
             zi, zo = rgl_eval(a, b, check, hold, hold, self.isotropic, self.reduction, self.jacobian, self.theta_hold,
                               k["p_phi"], k["p_theta"], k["st_phi"], k["st_theta"], k["data"], k["cond"], k["marg"],
-                              k["spectra"], k["ndf"], k["sigma"], k["sigma_phi"], lo, hi, t, out[rows])
+                              k["spectra"], k["ndf"], k["sigma"], lo, hi, t, out[rows])
             zero_i, zero_o = zero_i + zi, zero_o + zo
         if zero_i or zero_o:
             raise ParameterError("wi" if zero_i else "wo", "a direction has zero length")
