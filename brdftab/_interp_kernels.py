@@ -727,11 +727,13 @@ class WindowPlan:
 # RGL .bsdf files (Mitsuba 3's `measured`)
 #
 # The pairs go through in blocks of RGL_BLOCK, each in passes over all the block's pairs at
-# once (structure of arrays: one scratch row per quantity), so that every pass is a plain loop
-# without branches the compiler turns into SIMD instructions: the coordinates, the parameter
+# once (structure of arrays: one scratch row per quantity): the coordinates, the parameter
 # cells, the gathers of the warp's tables per parameter corner, the warp's inversion, the
-# gathers of the spectra, the NDF/σ factor, the output. The rare pairs that are not unit
-# vectors or not finite are settled in scalar code between the passes (:func:`_load`).
+# gathers of the spectra, the NDF/σ factor, the output. The arithmetic passes are plain loops
+# without branches, which the compiler turns into SIMD instructions; the gathers stay scalar
+# loads (LLVM emits no gather instructions for this processor family), one pair at a time with
+# the sums in registers. The rare pairs that are not unit vectors or not finite are settled in
+# scalar code between the passes (:func:`_load`).
 
 #: Pairs per block of the RGL evaluation (its scratch rows stay within the core's L2 cache).
 RGL_BLOCK = 256
@@ -821,22 +823,20 @@ def _param_cells(vals, p, cnt, idx, wgt, lo_v, hi_v):
         wgt[j] = min(max(w1, 0.0), 1.0)
 
 
-@device(inline=True)
+@device
 def _bilinear2(table, x, y):
-    """A raw bilinear table ``[H, W]`` at ``(x, y)`` of the unit square (``Marginal2D.eval``),
-    in float64 whatever the table's type."""
+    """A raw bilinear table ``[H, W]`` at ``(x, y)`` of the unit square (``Marginal2D.eval``)."""
     h, w = table.shape
     x = min(max(x, 0.0), 1.0) * (w - 1)
     y = min(max(y, 0.0), 1.0) * (h - 1)
     ix = min(int(x), w - 2)
     iy = min(int(y), h - 2)
     tx, ty = x - ix, y - iy
-    a, b = np.float64(table[np.uint64(iy), np.uint64(ix)]), np.float64(table[np.uint64(iy), np.uint64(ix + 1)])
-    c, d = np.float64(table[np.uint64(iy + 1), np.uint64(ix)]), np.float64(table[np.uint64(iy + 1), np.uint64(ix + 1)])
-    return _lerp(_lerp(a, b, tx), _lerp(c, d, tx), ty)
+    iy0, iy1, ix0, ix1 = np.uint64(iy), np.uint64(iy + 1), np.uint64(ix), np.uint64(ix + 1)  # (see _warp_at)
+    return _lerp(_lerp(table[iy0, ix0], table[iy0, ix1], tx), _lerp(table[iy1, ix0], table[iy1, ix1], tx), ty)
 
 
-@device(inline=True)
+@device
 def _warp_at(data_f, cond_f, marg_f, q, px, py, h, w):
     """The warp's numbers of slice ``q`` at cell ``(px, py)``: data at the cell's four nodes
     (x fastest), cond before the cell and at the row's end on rows py and py + 1 (before the
@@ -846,21 +846,19 @@ def _warp_at(data_f, cond_f, marg_f, q, px, py, h, w):
     k = (q * h + py) * (w - 1)
     pm = max(px - 1, 0)
     m = q * (h - 1) + max(py - 1, 0)
-    return (np.float64(data_f[np.uint64(g)]), np.float64(data_f[np.uint64(g + 1)]),
-            np.float64(data_f[np.uint64(g + w)]), np.float64(data_f[np.uint64(g + w + 1)]),
-            np.float64(cond_f[np.uint64(k + pm)]), np.float64(cond_f[np.uint64(k + (w - 1) + pm)]),
-            np.float64(cond_f[np.uint64(k + (w - 2))]), np.float64(cond_f[np.uint64(k + (w - 1) + (w - 2))]),
-            np.float64(marg_f[np.uint64(m)]))
+    return (data_f[np.uint64(g)], data_f[np.uint64(g + 1)], data_f[np.uint64(g + w)], data_f[np.uint64(g + w + 1)],
+            cond_f[np.uint64(k + pm)], cond_f[np.uint64(k + (w - 1) + pm)], cond_f[np.uint64(k + (w - 2))],
+            cond_f[np.uint64(k + (w - 1) + (w - 2))], marg_f[np.uint64(m)])
 
 
-@device(inline=True)
+@device
 def _spectrum_at(spec_f, g, ns, row, tx, ty):
     """The spectra's bilinear interpolant at flat index ``g`` (node (jx, jy) of a slice, one
     channel; ``row`` numbers a row), fractions ``tx``, ``ty``."""
-    g00 = np.float64(spec_f[np.uint64(g)])
-    g10 = np.float64(spec_f[np.uint64(g + ns)])
-    g01 = np.float64(spec_f[np.uint64(g + row)])
-    g11 = np.float64(spec_f[np.uint64(g + row + ns)])
+    g00 = spec_f[np.uint64(g)]
+    g10 = spec_f[np.uint64(g + ns)]
+    g01 = spec_f[np.uint64(g + row)]
+    g11 = spec_f[np.uint64(g + row + ns)]
     l0 = g00 + tx * (g10 - g00)
     l1 = g01 + tx * (g11 - g01)
     return l0 + ty * (l1 - l0)
@@ -893,7 +891,7 @@ def _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso, reduction):
     return (_theta2u(th_i), (ph_i + PI) * INV_TWO_PI, _theta2u(th_m), uy - np.floor(uy), th_i, ph_i, oz)
 
 
-@kernel(parallel=True)
+@kernel  # serial: the caller runs it on threads (brdftab._jit.parallel_rows)
 def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, p_phi, p_theta, st_phi, st_theta,
              data, cond, marg, spectra, ndf, sigma, lo, hi, t, out):
     """f (``divide``: f·cosθo / cosθo, with ``hold``) or f·cosθo of an RGL file at every pair,
@@ -919,15 +917,16 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
     n_blocks = (m + RGL_BLOCK - 1) // RGL_BLOCK
     zi = 0
     zo = 0
-    for b in prange(n_blocks):
+    for b in range(n_blocks):
         start = b * RGL_BLOCK
         cnt = min(m, start + RGL_BLOCK) - start
         sc = np.empty((_R_SPEC + ns, RGL_BLOCK))
         si = np.empty((10, RGL_BLOCK), np.int64)
         a_i = wi[start:start + cnt]
         a_o = wo[start:start + cnt]
-        # pass 1: coordinates (pairs that are not plainly unit and finite: -1, settled below);
-        # the directions first copied into rows (loads of every third number do not vectorize)
+        # pass 1: the directions copied into rows (loads of every third number do not
+        # vectorize); the pairs' status (those not plainly unit and finite: -1, then settled
+        # in scalar code, normalized as BRDF.eval does); their coordinates
         for j in range(cnt):
             sc[_R_ACC, j] = a_i[j, 0]
             sc[_R_ACC + 1, j] = a_i[j, 1]
@@ -946,21 +945,7 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
                 s = ix + iy + iz + ox + oy + oz
                 odd = not (s - s == 0.0)  # a component is not finite (or their sum overflows)
             st = 0.0 if (iz > HORIZON and oz > HORIZON) else 2.0
-            st = -1.0 if odd else st
-            good = st == 0.0
-            # pairs not evaluated take the normal's coordinates (their cells stay in the tables)
-            ix, iy, iz = (ix, iy, iz) if good else (0.0, 0.0, 1.0)
-            ox, oy, oz = (ox, oy, oz) if good else (0.0, 0.0, 1.0)
-            ui0, ui1, um0, um1, th_i, ph_i, ozh = _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso,
-                                                                   reduction)
-            sc[_R_ST, j] = st
-            sc[_R_UI0, j] = ui0
-            sc[_R_UI1, j] = ui1
-            sc[_R_UM0, j] = um0
-            sc[_R_UM1, j] = um1
-            sc[_R_TH, j] = th_i
-            sc[_R_PH, j] = ph_i
-            sc[_R_OZ, j] = ozh
+            sc[_R_ST, j] = -1.0 if odd else st
             n_odd += 1 if odd else 0
         if n_odd:
             for j in range(cnt):
@@ -971,16 +956,26 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
                                     and math.isfinite(ox) and math.isfinite(oy) and math.isfinite(oz)):
                     st = 1  # (unchecked input) not finite: NaN
                 sc[_R_ST, j] = st
-                if st == 0:
-                    ui0, ui1, um0, um1, th_i, ph_i, ozh = _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0,
-                                                                           iso, reduction)
-                    sc[_R_UI0, j] = ui0
-                    sc[_R_UI1, j] = ui1
-                    sc[_R_UM0, j] = um0
-                    sc[_R_UM1, j] = um1
-                    sc[_R_TH, j] = th_i
-                    sc[_R_PH, j] = ph_i
-                    sc[_R_OZ, j] = ozh
+                sc[_R_ACC, j], sc[_R_ACC + 1, j], sc[_R_ACC + 2, j] = ix, iy, iz
+                sc[_R_ACC + 3, j], sc[_R_ACC + 4, j], sc[_R_ACC + 5, j] = ox, oy, oz
+        for j in range(cnt):
+            good = sc[_R_ST, j] == 0.0
+            # pairs not evaluated take the normal's coordinates (their cells stay in the tables)
+            ix = sc[_R_ACC, j] if good else 0.0
+            iy = sc[_R_ACC + 1, j] if good else 0.0
+            iz = sc[_R_ACC + 2, j] if good else 1.0
+            ox = sc[_R_ACC + 3, j] if good else 0.0
+            oy = sc[_R_ACC + 4, j] if good else 0.0
+            oz = sc[_R_ACC + 5, j] if good else 1.0
+            ui0, ui1, um0, um1, th_i, ph_i, ozh = _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso,
+                                                                   reduction)
+            sc[_R_UI0, j] = ui0
+            sc[_R_UI1, j] = ui1
+            sc[_R_UM0, j] = um0
+            sc[_R_UM1, j] = um1
+            sc[_R_TH, j] = th_i
+            sc[_R_PH, j] = ph_i
+            sc[_R_OZ, j] = ozh
         # pass 2: parameter cells and corners (slices q, weights)
         _param_cells(p_phi, sc[_R_PH], cnt, si[_I_A], sc[_R_W + 2], sc[_R_ACC], sc[_R_ACC + 1])
         _param_cells(p_theta, sc[_R_TH], cnt, si[_I_B], sc[_R_W + 3], sc[_R_ACC], sc[_R_ACC + 1])
