@@ -1,19 +1,19 @@
 """Compiled interpolation of tables and RGL ``.bsdf`` files (numba, see :mod:`brdftab._jit`).
 
-One pass per direction pair, written straight into the caller's output array:
+Written straight into the caller's output array:
 
-* :func:`table_eval` — a :class:`~brdftab.table.Table`: the pair's grid coordinates (Rusinkiewicz
-  half/difference angles with the table's φd fold, or gonio angles, absolute or relative to the
-  mirror direction, with the isotropic rotation onto the first φi node and a bilateral grid's
-  mirror fold of φo − φi), the fractional index on
-  each axis (``Axis.fractional_index``: linear or square-root warped, periodic, wrapped arcs,
+* :func:`table_eval` — a :class:`~brdftab.table.Table`, one pass per pair: its grid
+  coordinates (Rusinkiewicz half/difference angles with the table's φd fold, or gonio angles,
+  absolute or relative to the mirror direction, with the isotropic rotation onto the first φi
+  node and a bilateral grid's mirror fold of φo − φi), the fractional index on each axis (``Axis.fractional_index``: linear or square-root warped, periodic, wrapped arcs,
   snapping onto nodes), the domain test (``Axis.outside``) and the multilinear weights over the
   valid corners (renormalized; missing samples and below-horizon nodes left out; horizon ghosts
   are already in the values). Pairs whose cell has no valid corner and lies wholly below the
   horizon are flagged: the caller fills them from the nearest nodes holding data (rare).
 * :func:`rgl_eval` — an :class:`~brdftab.formats._rgl_read.RGLBSDF`: Mitsuba 3's ``measured``
   evaluation (the VNDF warp inverted, the spectra interpolated on the warped square, NDF and
-  σ tables), with the reader's hold of f near the horizon.
+  σ tables), with the reader's hold of f near the horizon; in blocks of pairs, each in passes
+  over all its pairs (see the comment above the kernel).
 
 Both start from the raw direction arrays as :meth:`brdftab.brdf.BRDF.eval` receives them
 (:func:`_load`): rows that are not unit are normalized as ``BRDF.eval`` does, non-finite rows
@@ -943,7 +943,7 @@ def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, 
                            and abs(math.sqrt(ox * ox + oy * oy + oz * oz) - 1.0) <= 1e-12)
             else:
                 s = ix + iy + iz + ox + oy + oz
-                odd = not (s - s == 0.0)  # a component is not finite (or their sum overflows)
+                odd = s - s != 0.0  # a component is not finite (or their sum overflows)
             st = 0.0 if (iz > HORIZON and oz > HORIZON) else 2.0
             sc[_R_ST, j] = -1.0 if odd else st
             n_odd += 1 if odd else 0

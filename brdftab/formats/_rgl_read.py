@@ -297,7 +297,7 @@ class RGLBSDF(BRDF):
         for rows, a, b in contiguous_pairs(wi, wo):
             o = out[rows]
 
-            def run(r0, r1):
+            def run(r0, r1, a=a, b=b, o=o):
                 return rgl_eval(a[r0:r1], b[r0:r1], check, hold, hold, self.isotropic, self.reduction, self.jacobian,
                                 self.theta_hold, k["p_phi"], k["p_theta"], k["st_phi"], k["st_theta"], k["data"],
                                 k["cond"], k["marg"], k["spectra"], k["ndf"], k["sigma"], lo, hi, t, o[r0:r1])
