@@ -1,19 +1,19 @@
 """Compiled interpolation of tables and RGL ``.bsdf`` files (numba, see :mod:`brdftab._jit`).
 
-One pass per direction pair, written straight into the caller's output array:
+Written straight into the caller's output array:
 
-* :func:`table_eval` — a :class:`~brdftab.table.Table`: the pair's grid coordinates (Rusinkiewicz
-  half/difference angles with the table's φd fold, or gonio angles, absolute or relative to the
-  mirror direction, with the isotropic rotation onto the first φi node and a bilateral grid's
-  mirror fold of φo − φi), the fractional index on
-  each axis (``Axis.fractional_index``: linear or square-root warped, periodic, wrapped arcs,
+* :func:`table_eval` — a :class:`~brdftab.table.Table`, one pass per pair: its grid
+  coordinates (Rusinkiewicz half/difference angles with the table's φd fold, or gonio angles,
+  absolute or relative to the mirror direction, with the isotropic rotation onto the first φi
+  node and a bilateral grid's mirror fold of φo − φi), the fractional index on each axis (``Axis.fractional_index``: linear or square-root warped, periodic, wrapped arcs,
   snapping onto nodes), the domain test (``Axis.outside``) and the multilinear weights over the
   valid corners (renormalized; missing samples and below-horizon nodes left out; horizon ghosts
   are already in the values). Pairs whose cell has no valid corner and lies wholly below the
   horizon are flagged: the caller fills them from the nearest nodes holding data (rare).
 * :func:`rgl_eval` — an :class:`~brdftab.formats._rgl_read.RGLBSDF`: Mitsuba 3's ``measured``
   evaluation (the VNDF warp inverted, the spectra interpolated on the warped square, NDF and
-  σ tables), with the reader's hold of f near the horizon.
+  σ tables), with the reader's hold of f near the horizon; in blocks of pairs, each in passes
+  over all its pairs (see the comment above the kernel).
 
 Both start from the raw direction arrays as :meth:`brdftab.brdf.BRDF.eval` receives them
 (:func:`_load`): rows that are not unit are normalized as ``BRDF.eval`` does, non-finite rows
@@ -725,13 +725,48 @@ class WindowPlan:
 
 # ------------------------------------------------------------------------------------------
 # RGL .bsdf files (Mitsuba 3's `measured`)
+#
+# The pairs go through in blocks of RGL_BLOCK, each in passes over all the block's pairs at
+# once (structure of arrays: one scratch row per quantity): the coordinates, the parameter
+# cells, the gathers of the warp's tables per parameter corner, the warp's inversion, the
+# gathers of the spectra, the NDF/σ factor, the output. The arithmetic passes are plain loops
+# without branches, which the compiler turns into SIMD instructions; the gathers stay scalar
+# loads (LLVM emits no gather instructions for this processor family), one pair at a time with
+# the sums in registers. The rare pairs that are not unit vectors or not finite are settled in
+# scalar code between the passes (:func:`_load`).
+
+#: Pairs per block of the RGL evaluation (its scratch rows stay within the core's L2 cache).
+RGL_BLOCK = 256
+# rows of a block's float scratch: status (0 evaluated; -1 the scalar code decides; else
+# _load's), u(θi), u(φi), u(θm), u(φm[−φi]), θi, φi, cosθo (held), then the corners' weights
+# (4), the warp's gathered values (9: data at its cell's four nodes, cond before the cell and
+# at the row's end on both rows, marg), the warped sample's cell fractions (2), the factor
+# (NDF/σ, 1/cosθo) and the spectra (one row per stored channel)
+_R_ST, _R_UI0, _R_UI1, _R_UM0, _R_UM1, _R_TH, _R_PH, _R_OZ = 0, 1, 2, 3, 4, 5, 6, 7
+_R_W = 8
+_R_ACC = 12
+_R_TX, _R_TY, _R_SCALE = 21, 22, 23
+_R_SPEC = 24
+# rows of its integer scratch: the corners' slices (4), the warp cell (px, py), the spectra's
+# cell (jx, jy), the parameter cells (φi, θi)
+_I_Q, _I_PX, _I_PY, _I_JX, _I_JY, _I_A, _I_B = 0, 4, 5, 6, 7, 8, 9
 
 
 @device
 def _elevation(x, y, z):
     """The polar angle of a unit vector above the horizon (z > 0): atan2(|xy|, z), the number
     of Mitsuba's 2 asin(|w − ẑ|/2) (``_rgl_warp.elevation``) to rounding, branch-free."""
-    return _atan2(math.sqrt(x * x + y * y), z)
+    return _atan_ratio(math.sqrt(x * x + y * y), z)
+
+
+@device
+def _atan2_sel(y, x):
+    """``atan2(y, x)`` of finite values by selects only (:func:`_atan2`'s number; on the axes
+    libm's: ±π/2, and ±0 or ±π at y = x = 0 by the signs of the zeros)."""
+    ax = abs(x)
+    ay = abs(y)
+    a = _atan_ratio(ay, 1.0 if (ax == 0.0 and ay == 0.0) else ax)  # atan(y/0) = π/2 exactly
+    return math.copysign(PI - a if math.copysign(1.0, x) < 0.0 else a, y)
 
 
 @device
@@ -744,26 +779,48 @@ def _lerp(a, b, t):
     return a + t * (b - a)
 
 
+#: Parameter axes up to this many values are searched by counting the values below p (every
+#: value compared: a loop over the pairs the compiler vectorizes); longer ones by halving steps.
+COUNT_SEARCH = 32
+
+
 @device
-def _param_cell(p, vals):
-    """``(index, weight of index + 1)`` of parameter ``p`` (``Marginal2D._corners``)."""
+def _param_cells(vals, p, cnt, idx, wgt, lo_v, hi_v):
+    """The cells of parameters ``p[:cnt]`` on the axis ``vals`` as ``Marginal2D._corners``
+    finds them: into ``idx`` the index (searchsorted(vals, p, "left") − 1 clipped to the
+    cells), into ``wgt`` the clamped weight of index + 1 (``lo_v``, ``hi_v``: scratch for the
+    cell's end values); each step a pass over all the values (so that the passes vectorize)."""
     n = vals.shape[0]
     if n == 1:
-        return 0, 0.0
-    # searchsorted(vals, p, "left") = the number of values below p, by halving steps of a fixed
-    # count that add or not (a select, not a branch: p is random, the values' order is not)
-    lo = 0
-    step = 1
-    while 2 * step <= n:
-        step *= 2
-    while step > 0:
-        k = min(lo + step, n)
-        lo = k if vals[k - 1] < p else lo
-        step >>= 1
-    i = min(max(lo - 1, 0), n - 2)
-    w1 = (p - vals[i]) / (vals[i + 1] - vals[i])
-    w1 = min(max(w1, 0.0), 1.0)
-    return i, w1
+        for j in range(cnt):
+            idx[j] = 0
+            wgt[j] = 0.0
+        return
+    for j in range(cnt):
+        idx[j] = 0
+    if n <= COUNT_SEARCH:
+        # searchsorted(vals, p, "left") = the number of values below p
+        for k in range(n):
+            v = vals[k]
+            for j in range(cnt):
+                idx[j] += 1 if v < p[j] else 0
+    else:
+        step = 1
+        while 2 * step <= n:
+            step *= 2
+        while step > 0:
+            for j in range(cnt):
+                k = min(idx[j] + step, n)
+                idx[j] = k if vals[np.uint64(k - 1)] < p[j] else idx[j]
+            step >>= 1
+    for j in range(cnt):
+        i = min(max(idx[j] - 1, 0), n - 2)
+        idx[j] = i
+        lo_v[j] = vals[np.uint64(i)]
+        hi_v[j] = vals[np.uint64(i + 1)]
+    for j in range(cnt):
+        w1 = (p[j] - lo_v[j]) / (hi_v[j] - lo_v[j])
+        wgt[j] = min(max(w1, 0.0), 1.0)
 
 
 @device
@@ -775,151 +832,286 @@ def _bilinear2(table, x, y):
     ix = min(int(x), w - 2)
     iy = min(int(y), h - 2)
     tx, ty = x - ix, y - iy
-    return _lerp(_lerp(table[iy, ix], table[iy, ix + 1], tx), _lerp(table[iy + 1, ix], table[iy + 1, ix + 1], tx), ty)
+    iy0, iy1, ix0, ix1 = np.uint64(iy), np.uint64(iy + 1), np.uint64(ix), np.uint64(ix + 1)  # (see _warp_at)
+    return _lerp(_lerp(table[iy0, ix0], table[iy0, ix1], tx), _lerp(table[iy1, ix0], table[iy1, ix1], tx), ty)
 
 
 @device
-def _g3(t, s0, s1, s2, s3, w0, w1, w2, w3, iy, ix):
-    """Σ w_c · t[s_c, iy, ix] over the corners of non-zero weight (``Marginal2D._gather``)."""
-    out = 0.0
-    if w0 != 0.0:
-        out += w0 * t[s0, iy, ix]
-    if w1 != 0.0:
-        out += w1 * t[s1, iy, ix]
-    if w2 != 0.0:
-        out += w2 * t[s2, iy, ix]
-    if w3 != 0.0:
-        out += w3 * t[s3, iy, ix]
-    return out
+def _warp_at(data_f, cond_f, marg_f, q, px, py, h, w):
+    """The warp's numbers of slice ``q`` at cell ``(px, py)``: data at the cell's four nodes
+    (x fastest), cond before the cell and at the row's end on rows py and py + 1 (before the
+    cell: at max(px − 1, 0)), marg before the row (at max(py − 1, 0)). (Indices are unsigned:
+    they are not negative, and numba then leaves out its test for indices from the end.)"""
+    g = (q * h + py) * w + px
+    k = (q * h + py) * (w - 1)
+    pm = max(px - 1, 0)
+    m = q * (h - 1) + max(py - 1, 0)
+    return (data_f[np.uint64(g)], data_f[np.uint64(g + 1)], data_f[np.uint64(g + w)], data_f[np.uint64(g + w + 1)],
+            cond_f[np.uint64(k + pm)], cond_f[np.uint64(k + (w - 1) + pm)], cond_f[np.uint64(k + (w - 2))],
+            cond_f[np.uint64(k + (w - 1) + (w - 2))], marg_f[np.uint64(m)])
 
 
 @device
-def _g2(t, s0, s1, s2, s3, w0, w1, w2, w3, iy):
-    out = 0.0
-    if w0 != 0.0:
-        out += w0 * t[s0, iy]
-    if w1 != 0.0:
-        out += w1 * t[s1, iy]
-    if w2 != 0.0:
-        out += w2 * t[s2, iy]
-    if w3 != 0.0:
-        out += w3 * t[s3, iy]
-    return out
+def _spectrum_at(spec_f, g, ns, row, tx, ty):
+    """The spectra's bilinear interpolant at flat index ``g`` (node (jx, jy) of a slice, one
+    channel; ``row`` numbers a row), fractions ``tx``, ``ty``."""
+    g00 = spec_f[np.uint64(g)]
+    g10 = spec_f[np.uint64(g + ns)]
+    g01 = spec_f[np.uint64(g + row)]
+    g11 = spec_f[np.uint64(g + row + ns)]
+    l0 = g00 + tx * (g10 - g00)
+    l1 = g01 + tx * (g11 - g01)
+    return l0 + ty * (l1 - l0)
 
 
-@kernel(parallel=True)
+@device(inline=True)  # inlined on numba's IR: LLVM finds it too large to inline, and its loop then stays scalar
+def _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso, reduction):
+    """``(u(θi), u(φi), u(θm), u(φm[−φi]), θi, φi, cosθo)`` of a pair of unit vectors above the
+    horizon, with the hold of ωo beyond θ_hold and the mirroring of reduced files (selects
+    only)."""
+    low = hold and oz < c0
+    r = math.sqrt(ox * ox + oy * oy)
+    k = s0 / (r if low else 1.0)
+    ox = ox * k if low else ox
+    oy = oy * k if low else oy
+    oz = c0 if low else oz
+    if not iso and reduction >= 2:
+        # mulsign_neg: wi to y <= 0 (and x <= 0 for a quarter); a half turns both axes
+        sy = -1.0 if iy >= 0.0 else 1.0
+        sx = (-1.0 if ix >= 0.0 else 1.0) if reduction == 4 else sy
+        ix, iy, ox, oy = ix * sx, iy * sy, ox * sx, oy * sy
+    mx, my, mz = ix + ox, iy + oy, iz + oz
+    mn = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
+    mx, my, mz = mx * mn, my * mn, mz * mn
+    th_i = _elevation(ix, iy, iz)
+    th_m = _elevation(mx, my, mz)
+    ph_i = _atan2_sel(iy, ix)
+    ph_m = _atan2_sel(my, mx)
+    uy = ((ph_m - ph_i if iso else ph_m) + PI) * INV_TWO_PI
+    return (_theta2u(th_i), (ph_i + PI) * INV_TWO_PI, _theta2u(th_m), uy - np.floor(uy), th_i, ph_i, oz)
+
+
+@kernel  # serial: the caller runs it on threads (brdftab._jit.parallel_rows)
 def rgl_eval(wi, wo, check, hold, divide, iso, reduction, jacobian, theta_hold, p_phi, p_theta, st_phi, st_theta,
              data, cond, marg, spectra, ndf, sigma, lo, hi, t, out):
     """f (``divide``: f·cosθo / cosθo, with ``hold``) or f·cosθo of an RGL file at every pair,
-    into ``out[M, n]`` (channels ``lo``, ``hi``, weight ``t`` of the stored spectra). Returns
-    ``(wi zero vectors, wo zero vectors)``."""
+    into ``out[M, n]`` (channels ``lo``, ``hi``, weight ``t`` of the stored spectra).
+    Returns ``(wi zero vectors, wo zero vectors)``."""
     m = wi.shape[0]
     nc = lo.shape[0]
     ns = spectra.shape[3]
     h, w = data.shape[1], data.shape[2]
     res = spectra.shape[1]
+    n_phi = p_phi.shape[0]
+    n_theta = p_theta.shape[0]
+    # corners over (φi, θi), first parameter most significant; one or two per parameter
+    nq = (2 if n_phi > 1 else 1) * (2 if n_theta > 1 else 1)
     c0 = math.cos(theta_hold)
     s0 = math.sin(theta_hold)
     inv_w = 1.0 / (w - 1)
     inv_h = 1.0 / (h - 1)
-    n_blocks = (m + BLOCK - 1) // BLOCK
+    data_f = data.reshape(data.size)
+    cond_f = cond.reshape(cond.size)
+    marg_f = marg.reshape(marg.size)
+    spec_f = spectra.reshape(spectra.size)
+    n_blocks = (m + RGL_BLOCK - 1) // RGL_BLOCK
     zi = 0
     zo = 0
-    for b in prange(n_blocks):
-        spec = np.empty(ns)
-        for i in range(b * BLOCK, min(m, (b + 1) * BLOCK)):
-            ix, iy, iz, ox, oy, oz, st = _load(wi, wo, i, check)
-            if st != 0:
-                di, do = _settle(out, i, nc, st)
-                zi += di
-                zo += do
-                continue
-            if hold and oz < c0:
-                r = math.hypot(ox, oy)
-                ox *= s0 / r
-                oy *= s0 / r
-                oz = c0
-            if not iso and reduction >= 2:
-                # mulsign_neg: wi to y <= 0 (and x <= 0 for a quarter); a half turns both axes
-                sy = -1.0 if iy >= 0.0 else 1.0
-                sx = (-1.0 if ix >= 0.0 else 1.0) if reduction == 4 else sy
-                ix, iy, ox, oy = ix * sx, iy * sy, ox * sx, oy * sy
-            mx, my, mz = ix + ox, iy + oy, iz + oz
-            mn = 1.0 / math.sqrt(mx * mx + my * my + mz * mz)
-            mx, my, mz = mx * mn, my * mn, mz * mn
-            th_i = _elevation(ix, iy, iz)
-            ph_i = _atan2(iy, ix)
-            th_m = _elevation(mx, my, mz)
-            ph_m = _atan2(my, mx)
-            ui0 = _theta2u(th_i)
-            ui1 = (ph_i + PI) * INV_TWO_PI
-            uy = ((ph_m - ph_i if iso else ph_m) + PI) * INV_TWO_PI
-            um0 = _theta2u(th_m)
-            um1 = uy - math.floor(uy)
-            # parameter corners (φi, θi): slices s_k, weights w_k (first parameter most significant)
-            a, wa = _param_cell(ph_i, p_phi)
-            bb, wb = _param_cell(th_i, p_theta)
-            sa0, sa1 = a * st_phi, (a + 1) * st_phi
-            sb0, sb1 = bb * st_theta, (bb + 1) * st_theta
-            if p_phi.shape[0] == 1:
-                sa0, sa1 = 0, 0
-            if p_theta.shape[0] == 1:
-                sb0, sb1 = 0, 0
-            wa0, wa1 = 1.0 - wa, wa
-            if p_phi.shape[0] == 1:
-                wa0, wa1 = 1.0, 0.0
-            wb0, wb1 = 1.0 - wb, wb
-            if p_theta.shape[0] == 1:
-                wb0, wb1 = 1.0, 0.0
-            q0, q1, q2, q3 = sa0 + sb0, sa0 + sb1, sa1 + sb0, sa1 + sb1
-            v0, v1, v2, v3 = 1.0 * wa0 * wb0, 1.0 * wa0 * wb1, 1.0 * wa1 * wb0, 1.0 * wa1 * wb1
-            # vndf.invert(u_m)
-            sxx = min(max(um0, 0.0), 1.0) * (w - 1)
-            syy = min(max(um1, 0.0), 1.0) * (h - 1)
+    for b in range(n_blocks):
+        start = b * RGL_BLOCK
+        cnt = min(m, start + RGL_BLOCK) - start
+        sc = np.empty((_R_SPEC + ns, RGL_BLOCK))
+        si = np.empty((10, RGL_BLOCK), np.int64)
+        a_i = wi[start:start + cnt]
+        a_o = wo[start:start + cnt]
+        # pass 1: the directions copied into rows (loads of every third number do not
+        # vectorize); the pairs' status (those not plainly unit and finite: -1, then settled
+        # in scalar code, normalized as BRDF.eval does); their coordinates
+        for j in range(cnt):
+            sc[_R_ACC, j] = a_i[j, 0]
+            sc[_R_ACC + 1, j] = a_i[j, 1]
+            sc[_R_ACC + 2, j] = a_i[j, 2]
+            sc[_R_ACC + 3, j] = a_o[j, 0]
+            sc[_R_ACC + 4, j] = a_o[j, 1]
+            sc[_R_ACC + 5, j] = a_o[j, 2]
+        n_odd = 0
+        for j in range(cnt):
+            ix, iy, iz = sc[_R_ACC, j], sc[_R_ACC + 1, j], sc[_R_ACC + 2, j]
+            ox, oy, oz = sc[_R_ACC + 3, j], sc[_R_ACC + 4, j], sc[_R_ACC + 5, j]
+            if check:
+                odd = not (abs(math.sqrt(ix * ix + iy * iy + iz * iz) - 1.0) <= 1e-12
+                           and abs(math.sqrt(ox * ox + oy * oy + oz * oz) - 1.0) <= 1e-12)
+            else:
+                s = ix + iy + iz + ox + oy + oz
+                odd = s - s != 0.0  # a component is not finite (or their sum overflows)
+            st = 0.0 if (iz > HORIZON and oz > HORIZON) else 2.0
+            sc[_R_ST, j] = -1.0 if odd else st
+            n_odd += 1 if odd else 0
+        if n_odd:
+            for j in range(cnt):
+                if sc[_R_ST, j] != -1.0:
+                    continue
+                ix, iy, iz, ox, oy, oz, st = _load(wi, wo, start + j, check)
+                if st == 0 and not (math.isfinite(ix) and math.isfinite(iy) and math.isfinite(iz)
+                                    and math.isfinite(ox) and math.isfinite(oy) and math.isfinite(oz)):
+                    st = 1  # (unchecked input) not finite: NaN
+                sc[_R_ST, j] = st
+                sc[_R_ACC, j], sc[_R_ACC + 1, j], sc[_R_ACC + 2, j] = ix, iy, iz
+                sc[_R_ACC + 3, j], sc[_R_ACC + 4, j], sc[_R_ACC + 5, j] = ox, oy, oz
+        for j in range(cnt):
+            good = sc[_R_ST, j] == 0.0
+            # pairs not evaluated take the normal's coordinates (their cells stay in the tables)
+            ix = sc[_R_ACC, j] if good else 0.0
+            iy = sc[_R_ACC + 1, j] if good else 0.0
+            iz = sc[_R_ACC + 2, j] if good else 1.0
+            ox = sc[_R_ACC + 3, j] if good else 0.0
+            oy = sc[_R_ACC + 4, j] if good else 0.0
+            oz = sc[_R_ACC + 5, j] if good else 1.0
+            ui0, ui1, um0, um1, th_i, ph_i, ozh = _rgl_coordinates(ix, iy, iz, ox, oy, oz, hold, c0, s0, iso,
+                                                                   reduction)
+            sc[_R_UI0, j] = ui0
+            sc[_R_UI1, j] = ui1
+            sc[_R_UM0, j] = um0
+            sc[_R_UM1, j] = um1
+            sc[_R_TH, j] = th_i
+            sc[_R_PH, j] = ph_i
+            sc[_R_OZ, j] = ozh
+        # pass 2: parameter cells and corners (slices q, weights)
+        _param_cells(p_phi, sc[_R_PH], cnt, si[_I_A], sc[_R_W + 2], sc[_R_ACC], sc[_R_ACC + 1])
+        _param_cells(p_theta, sc[_R_TH], cnt, si[_I_B], sc[_R_W + 3], sc[_R_ACC], sc[_R_ACC + 1])
+        for j in range(cnt):
+            a = si[_I_A, j]
+            bb = si[_I_B, j]
+            wa = sc[_R_W + 2, j]
+            wb = sc[_R_W + 3, j]
+            if n_phi > 1 and n_theta > 1:
+                si[_I_Q, j] = a * st_phi + bb * st_theta
+                si[_I_Q + 1, j] = a * st_phi + (bb + 1) * st_theta
+                si[_I_Q + 2, j] = (a + 1) * st_phi + bb * st_theta
+                si[_I_Q + 3, j] = (a + 1) * st_phi + (bb + 1) * st_theta
+                sc[_R_W, j] = (1.0 - wa) * (1.0 - wb)
+                sc[_R_W + 1, j] = (1.0 - wa) * wb
+                sc[_R_W + 2, j] = wa * (1.0 - wb)
+                sc[_R_W + 3, j] = wa * wb
+            elif n_theta > 1:
+                si[_I_Q, j] = bb * st_theta
+                si[_I_Q + 1, j] = (bb + 1) * st_theta
+                sc[_R_W, j] = 1.0 - wb
+                sc[_R_W + 1, j] = wb
+            elif n_phi > 1:
+                si[_I_Q, j] = a * st_phi
+                si[_I_Q + 1, j] = (a + 1) * st_phi
+                sc[_R_W, j] = 1.0 - wa
+                sc[_R_W + 1, j] = wa
+            else:
+                si[_I_Q, j] = 0
+                sc[_R_W, j] = 1.0
+        # pass 3: the warp's cell at u_m, then its tables there summed over the corners (one
+        # pair at a time: the gathers are scalar loads either way, the sums stay in registers)
+        for j in range(cnt):
+            sxx = min(max(sc[_R_UM0, j], 0.0), 1.0) * (w - 1)
+            syy = min(max(sc[_R_UM1, j], 0.0), 1.0) * (h - 1)
             px = min(int(sxx), w - 2)
             py = min(int(syy), h - 2)
-            fx, fy = sxx - px, syy - py
-            d00 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py, px)
-            d10 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py, px + 1)
-            d01 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px)
-            d11 = _g3(data, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px + 1)
-            e0, e1 = _lerp(d00, d01, fy), _lerp(d10, d11, fy)
+            si[_I_PX, j] = px
+            si[_I_PY, j] = py
+            sc[_R_TX, j] = sxx - px
+            sc[_R_TY, j] = syy - py
+        for j in range(cnt):
+            px = si[_I_PX, j]
+            py = si[_I_PY, j]
+            v0 = sc[_R_W, j]
+            if nq == 2:  # an isotropic file's two θi slices (or φi's of a file with one θi)
+                v1 = sc[_R_W + 1, j]
+                a0, a1, a2, a3, a4, a5, a6, a7, a8 = _warp_at(data_f, cond_f, marg_f, si[_I_Q, j], px, py, h, w)
+                b0, b1, b2, b3, b4, b5, b6, b7, b8 = _warp_at(data_f, cond_f, marg_f, si[_I_Q + 1, j], px, py, h, w)
+                sc[_R_ACC, j] = v0 * a0 + v1 * b0
+                sc[_R_ACC + 1, j] = v0 * a1 + v1 * b1
+                sc[_R_ACC + 2, j] = v0 * a2 + v1 * b2
+                sc[_R_ACC + 3, j] = v0 * a3 + v1 * b3
+                sc[_R_ACC + 4, j] = v0 * a4 + v1 * b4
+                sc[_R_ACC + 5, j] = v0 * a5 + v1 * b5
+                sc[_R_ACC + 6, j] = v0 * a6 + v1 * b6
+                sc[_R_ACC + 7, j] = v0 * a7 + v1 * b7
+                sc[_R_ACC + 8, j] = v0 * a8 + v1 * b8
+                continue
+            a0, a1, a2, a3, a4, a5, a6, a7, a8 = _warp_at(data_f, cond_f, marg_f, si[_I_Q, j], px, py, h, w)
+            a0, a1, a2, a3, a4, a5, a6, a7, a8 = (v0 * a0, v0 * a1, v0 * a2, v0 * a3, v0 * a4, v0 * a5, v0 * a6,
+                                                  v0 * a7, v0 * a8)
+            for c in range(1, nq):
+                v = sc[_R_W + c, j]
+                b0, b1, b2, b3, b4, b5, b6, b7, b8 = _warp_at(data_f, cond_f, marg_f, si[_I_Q + c, j], px, py, h, w)
+                a0, a1, a2, a3, a4, a5, a6, a7, a8 = (a0 + v * b0, a1 + v * b1, a2 + v * b2, a3 + v * b3, a4 + v * b4,
+                                                      a5 + v * b5, a6 + v * b6, a7 + v * b7, a8 + v * b8)
+            sc[_R_ACC, j] = a0
+            sc[_R_ACC + 1, j] = a1
+            sc[_R_ACC + 2, j] = a2
+            sc[_R_ACC + 3, j] = a3
+            sc[_R_ACC + 4, j] = a4
+            sc[_R_ACC + 5, j] = a5
+            sc[_R_ACC + 6, j] = a6
+            sc[_R_ACC + 7, j] = a7
+            sc[_R_ACC + 8, j] = a8
+        # pass 4: vndf.invert(u_m), and the spectra's cell at the warped sample
+        for j in range(cnt):
+            fx = sc[_R_TX, j]
+            fy = sc[_R_TY, j]
+            e0 = _lerp(sc[_R_ACC, j], sc[_R_ACC + 2, j], fy)
+            e1 = _lerp(sc[_R_ACC + 1, j], sc[_R_ACC + 3, j], fy)
             fx = fx * _lerp(e0, e1, 0.5 * fx) * inv_w
-            if px > 0:
-                fx = fx + _lerp(_g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, px - 1),
-                                _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, px - 1), fy)
-            r0 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py, w - 2)
-            r1 = _g3(cond, q0, q1, q2, q3, v0, v1, v2, v3, py + 1, w - 2)
+            fx = fx + _lerp(sc[_R_ACC + 4, j], sc[_R_ACC + 5, j], fy) if si[_I_PX, j] > 0 else fx
+            r0 = sc[_R_ACC + 6, j]
+            r1 = sc[_R_ACC + 7, j]
             fx = fx / _lerp(r0, r1, fy)
             fy = fy * _lerp(r0, r1, 0.5 * fy) * inv_h
-            if py > 0:
-                fy = fy + _g2(marg, q0, q1, q2, q3, v0, v1, v2, v3, py - 1)
-            # spectra at the warped sample (every corner, as the reader's lookup)
+            fy = fy + sc[_R_ACC + 8, j] if si[_I_PY, j] > 0 else fy
             x = min(max(fx, 0.0), 1.0) * (res - 1)
             y = min(max(fy, 0.0), 1.0) * (res - 1)
-            jx = min(int(x), res - 2)
-            jy = min(int(y), res - 2)
-            tx, ty = x - jx, y - jy
-            for k in range(ns):
-                spec[k] = 0.0
-            for corner in range(4):
-                q = q0 if corner == 0 else (q1 if corner == 1 else (q2 if corner == 2 else q3))
-                wq = v0 if corner == 0 else (v1 if corner == 1 else (v2 if corner == 2 else v3))
-                if wq == 0.0:
-                    continue  # adds 0 (the stored spectra are finite: the reader checks them)
-                for k in range(ns):
-                    g00 = spectra[q, jy, jx, k]
-                    g10 = spectra[q, jy, jx + 1, k]
-                    g01 = spectra[q, jy + 1, jx, k]
-                    g11 = spectra[q, jy + 1, jx + 1, k]
-                    l0 = g00 + tx * (g10 - g00)
-                    l1 = g01 + tx * (g11 - g01)
-                    spec[k] = spec[k] + wq * (l0 + ty * (l1 - l0))
-            scale = 1.0
-            if jacobian:
-                scale = _bilinear2(ndf, um0, um1) / (4.0 * _bilinear2(sigma, ui0, ui1))
-            if divide:
-                scale = scale / oz
-            for c in range(nc):
-                out[i, c] = (spec[lo[c]] * (1.0 - t[c]) + spec[hi[c]] * t[c]) * scale
+            jx = max(min(int(x), res - 2), 0)  # (0 for a NaN sample: a cell in the table)
+            jy = max(min(int(y), res - 2), 0)
+            si[_I_JX, j] = jx
+            si[_I_JY, j] = jy
+            sc[_R_TX, j] = x - jx
+            sc[_R_TY, j] = y - jy
+        # pass 5: the spectra there, summed over the corners (every corner, as the reader's lookup)
+        row = res * ns
+        sl = res * row
+        for j in range(cnt):
+            si[_I_JX, j] = (si[_I_JY, j] * res + si[_I_JX, j]) * ns  # the cell's flat offset in a slice
+        for k in range(ns):
+            if nq == 2:
+                for j in range(cnt):
+                    cell = si[_I_JX, j] + k
+                    tx = sc[_R_TX, j]
+                    ty = sc[_R_TY, j]
+                    sc[_R_SPEC + k, j] = (sc[_R_W, j] * _spectrum_at(spec_f, si[_I_Q, j] * sl + cell, ns, row, tx, ty)
+                                          + sc[_R_W + 1, j] * _spectrum_at(spec_f, si[_I_Q + 1, j] * sl + cell, ns,
+                                                                           row, tx, ty))
+                continue
+            for j in range(cnt):
+                sc[_R_SPEC + k, j] = sc[_R_W, j] * _spectrum_at(spec_f, si[_I_Q, j] * sl + si[_I_JX, j] + k, ns, row,
+                                                                sc[_R_TX, j], sc[_R_TY, j])
+            for c in range(1, nq):
+                for j in range(cnt):
+                    sc[_R_SPEC + k, j] += sc[_R_W + c, j] * _spectrum_at(spec_f, si[_I_Q + c, j] * sl + si[_I_JX, j] + k,
+                                                                         ns, row, sc[_R_TX, j], sc[_R_TY, j])
+        # pass 6: the factor (its tables' gathers, then the divisions in a loop that vectorizes)
+        # and the output channels
+        if jacobian:
+            for j in range(cnt):
+                sc[_R_ACC, j] = _bilinear2(ndf, sc[_R_UM0, j], sc[_R_UM1, j])
+                sc[_R_ACC + 1, j] = _bilinear2(sigma, sc[_R_UI0, j], sc[_R_UI1, j])
+        for j in range(cnt):
+            scale = sc[_R_ACC, j] / (4.0 * sc[_R_ACC + 1, j]) if jacobian else 1.0
+            sc[_R_SCALE, j] = scale / sc[_R_OZ, j] if divide else scale
+        for c in range(nc):
+            l_c, h_c, t_c = lo[c], hi[c], t[c]
+            for j in range(cnt):
+                out[start + j, c] = (sc[_R_SPEC + l_c, j] * (1.0 - t_c) + sc[_R_SPEC + h_c, j] * t_c) * sc[_R_SCALE, j]
+        for j in range(cnt):
+            st = sc[_R_ST, j]
+            if st != 0.0:
+                di, do = _settle(out, start + j, nc, int(st))
+                zi += di
+                zo += do
     return zi, zo

@@ -285,8 +285,9 @@ class RGLBSDF(BRDF):
 
     def _compiled(self, wi, wo, lo, hi, t, check, hold):
         """f (``hold``: with the hold of :meth:`_eval_numpy`) or, without it, f·cosθo at
-        ``(M, 3)`` pairs, compiled; 0 at and below the horizon."""
+        ``(M, 3)`` pairs, compiled (one range of rows per thread); 0 at and below the horizon."""
         from .._interp_kernels import contiguous_pairs, rgl_eval
+        from .._jit import parallel_rows
 
         k = self._kernel_data()
         out = np.empty((wi.shape[0], lo.size))
@@ -294,10 +295,15 @@ class RGLBSDF(BRDF):
                      np.ascontiguousarray(t, np.float64))
         zero_i = zero_o = 0
         for rows, a, b in contiguous_pairs(wi, wo):
-            zi, zo = rgl_eval(a, b, check, hold, hold, self.isotropic, self.reduction, self.jacobian, self.theta_hold,
-                              k["p_phi"], k["p_theta"], k["st_phi"], k["st_theta"], k["data"], k["cond"], k["marg"],
-                              k["spectra"], k["ndf"], k["sigma"], lo, hi, t, out[rows])
-            zero_i, zero_o = zero_i + zi, zero_o + zo
+            o = out[rows]
+
+            def run(r0, r1, a=a, b=b, o=o):
+                return rgl_eval(a[r0:r1], b[r0:r1], check, hold, hold, self.isotropic, self.reduction, self.jacobian,
+                                self.theta_hold, k["p_phi"], k["p_theta"], k["st_phi"], k["st_theta"], k["data"],
+                                k["cond"], k["marg"], k["spectra"], k["ndf"], k["sigma"], lo, hi, t, o[r0:r1])
+
+            for zi, zo in parallel_rows(run, a.shape[0]):
+                zero_i, zero_o = zero_i + zi, zero_o + zo
         if zero_i or zero_o:
             raise ParameterError("wi" if zero_i else "wo", "a direction has zero length")
         return out
