@@ -389,6 +389,8 @@ def convert(source, target, fmt, grid_text, grid_file, options, fold, overwrite,
         click.echo("copied: same grid as the input" + (", in colour" if colour else ", values unchanged"))
         return
     click.echo(f"resampled: {result.source_grid or 'the input'} -> {grid_text_out}")
+    if result.refined:
+        click.echo(f"refined: {result.refined}")
     x = result.extrapolated
     if x:
         click.echo(f"extrapolated: {x['outside']} of {x['nodes']} nodes ({100 * x['fraction']:.3g} %) lie outside the "

@@ -13,7 +13,9 @@ format). The steps:
    (:func:`default_grid`): the input's own brdftab grid, or for an input in a format's own
    layout (an RGL ``.bsdf``) a Rusinkiewicz grid that keeps the input's symmetries — φh when
    it is anisotropic, φd over the full turn — as the output format stores it (:func:`brdftab.formats.target_grid`: MERL always stores the MERL
-   grid);
+   grid); on that grid θh is refined (:data:`REFINED_THETA_H`) while the resampled table
+   misrepresents the input beyond :data:`RESAMPLING_BOUND` (lobes narrower than its θh nodes:
+   mirror-like films), and the conversion says so;
 4. if the input has fewer symmetries than the target grid assumes (an anisotropic table onto
    an isotropic grid, one not known to be reciprocal onto a grid folded by reciprocity), it
    must be averaged into them: refused unless ``fold`` is given, which averages over
@@ -56,7 +58,7 @@ else:  # pragma: no cover - Python 3.10
 
 __all__ = ["Conversion", "Difference", "InvalidOutput", "convert", "grid_option", "grid_file",
            "format_option", "difference", "check_points", "default_grid", "CHECK_POINTS", "PHI_H_SAMPLES",
-           "RESAMPLING_BOUND"]
+           "RESAMPLING_BOUND", "REFINED_THETA_H"]
 
 #: Random direction pairs at which a resampled table is compared with its source.
 CHECK_POINTS = 4096
@@ -66,6 +68,12 @@ CHECK_POINTS = 4096
 #: ``allow_invalid``. The default conversion of a real measured RGL file to netCDF stays well
 #: inside (tests/test_convert.py::test_resampling_bound_is_met_by_a_measured_file).
 RESAMPLING_BOUND = {"median": 0.02, "p95": 0.10}
+#: θh node counts the default grid of an isotropic source in a format's own layout is refined
+#: to, in turn, while the resampled table exceeds :data:`RESAMPLING_BOUND` (its 90 MERL-spaced
+#: θh nodes are 0.15-0.2° apart at 0.5°: a lobe under a degree falls between them). 360 nodes
+#: meet the bound for the mirror-like films of the RGL database
+#: (tests/test_convert.py::test_default_grid_refines_theta_h_for_a_narrow_lobe).
+REFINED_THETA_H = (180, 360)
 #: Rotations about the normal averaged when an anisotropic source without a uniform φh axis is
 #: folded onto an isotropic grid.
 PHI_H_SAMPLES = 36
@@ -77,19 +85,21 @@ class InvalidOutput(ValidationError):
     exit_code = 1
 
 
-def default_grid(source):
+def default_grid(source, theta_h: int = 90):
     """The grid a conversion writes on when none is asked for — one rule for every input: the
     source's own brdftab grid; else (a format's own layout, e.g. an RGL file) a Rusinkiewicz
     grid with MERL's θh warp and φd over the full turn (no fold: such a file is conditioned on
     wi, so its interpolant is not exactly reciprocal even when its source was): 90 × 90 × 180
-    for an isotropic source, 48 × 32 × 96 with 96 φh nodes for an anisotropic one."""
+    for an isotropic source, 48 × 32 × 96 with 96 φh nodes for an anisotropic one. ``theta_h``:
+    the θh node count of an isotropic source's grid (:data:`REFINED_THETA_H` when
+    :func:`convert` refines it)."""
     from .grids.rusinkiewicz import RusinkiewiczGrid
 
     g = getattr(source, "grid", None)
     if isinstance(g, Grid):
         return g
     if source.isotropic:
-        return RusinkiewiczGrid(90, 90, 180, theta_h_spacing="merl", phi_d_fold="none")
+        return RusinkiewiczGrid(theta_h, 90, 180, theta_h_spacing="merl", phi_d_fold="none")
     return RusinkiewiczGrid(48, 32, 96, 96, theta_h_spacing="merl", phi_d_fold="none")
 
 
@@ -150,11 +160,13 @@ class Conversion:
     #: many nodes of the written table lay outside the hull of the source's samples and took
     #: their nearest sample's value (:mod:`brdftab.grids.scattered`)
     extrapolated: dict | None = None
+    #: the default grid's θh refined (:data:`REFINED_THETA_H`): to what, and why; empty if not
+    refined: str = ""
 
     def to_json(self) -> dict:
         return {"source": str(self.source), "target": str(self.target), "format": self.format,
                 "source_grid": self.source_grid, "target_grid": self.target_grid, "resampled": self.resampled,
-                "extrapolated": self.extrapolated,
+                "extrapolated": self.extrapolated, "refined": self.refined or None,
                 "folded": list(self.folded), "difference": self.difference.to_json() if self.difference else None,
                 "note": self.note, "checks": _checks_json(self.report),
                 "input_checks": _checks_json(self.input_report)}
@@ -429,8 +441,12 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
         if scattered:  # outside the samples' hull: the nearest sample, counted and reported
             table.outside = "clamp"
             table.extrapolation[:] = [0, 0, 0.0]
+        refined = ""
         if out_grid is not None and resampled and fmt.prepare is None:
             payload = _tabulate(brdf, out_grid, wavelengths, table, source, progress)
+            if grid is None and src_grid is None and table.isotropic and out_grid.equals(requested):
+                out_grid, payload, refined = _refine_theta_h(brdf, table, out_grid, payload, wavelengths, source,
+                                                             progress, n_check)
             bad = int(np.isnan(payload.values).any(axis=-1).sum())
             if bad and not allow_invalid:
                 raise BrdftabError(f"refusing to convert {source}: {bad} of {out_grid.size} nodes of "
@@ -500,6 +516,7 @@ def convert(source, target, *, grid=None, wavelengths=None, format: str | None =
                             out_grid.describe() if out_grid is not None else "", resampled, folded,
                             report=report_out, written=written, input_report=report_in, input_table=table,
                             extrapolated=extrapolated)
+        result.refined = refined
         if resampled or folded:
             back = _read_back(fmt, target, written)
             if back is None:
@@ -630,6 +647,32 @@ def _tabulate(brdf, grid, wavelengths, table, source: Path, progress):
             return tabulate(brdf, grid, wavelengths, progress=progress, provenance=provenance)
     except ParameterError as exc:
         raise BrdftabError(f"cannot resample {source} onto {grid.describe()}: {exc}") from None
+
+
+def _refine_theta_h(brdf, table, grid, payload, wavelengths, source: Path, progress, n_check):
+    """``(grid, payload, note)``: the default grid with θh refined to each of
+    :data:`REFINED_THETA_H` in turn while the table resampled on it misrepresents the source
+    beyond :data:`RESAMPLING_BOUND` (judged as the gate judges, at the grid's check points);
+    the first that meets it, or the finest (the gate then refuses it). ``note`` says what was
+    refined and why (empty: nothing was)."""
+    first = grid
+    figures = []
+    for n in REFINED_THETA_H:
+        gate, _ = difference(brdf, payload, n_check)
+        beyond = gate.exceeds() if gate is not None else []
+        if not beyond:
+            break
+        figures.append(f"{len(grid.axes[0])} θh nodes: {', '.join(beyond)}")
+        finer = default_grid(table, theta_h=n)
+        try:
+            payload = _tabulate(brdf, finer, wavelengths, table, source, progress)
+        except BrdftabError:  # a finer grid would not fit the memory budget: the gate judges this one
+            break
+        grid = finer
+    if grid is first:
+        return grid, payload, ""
+    return grid, payload, (f"θh refined to {len(grid.axes[0])} nodes: the source's lobes are narrower than the "
+                           f"default grid's ({'; '.join(figures)})")
 
 
 def _read_back(fmt, target: Path, written):
