@@ -302,10 +302,10 @@ def grazing_pairs(seed, which, lo, hi, n=400):
 #: formats/rgl-bsdf.md, Guarantees, "Grazing directions": (direction, band in degrees) ->
 #: tested bounds of the relative error of Mitsuba's f·cosθo, per source model.
 GRAZING_BOUNDS = {
-    ("o", 80.0, 87.0): {"recipe": {50: 0.02, 95: 0.09}, "lambert": {50: 0.023, 95: 0.1}},
-    ("o", 87.0, 89.5): {"recipe": {50: 0.18, 95: 1.5}, "lambert": {50: 0.21, 95: 1.25}},
-    ("i", 80.0, 87.0): {"recipe": {50: 0.002, 95: 0.03}, "lambert": {50: 0.002, 95: 0.05}},
-    ("i", 87.0, 89.9): {"recipe": {50: 0.002, 95: 0.045}, "lambert": {50: 0.002, 95: 0.06}},
+    ("o", 80.0, 87.0): {"recipe": {50: 0.02, 95: 0.09}, "lambert": {50: 0.005, 95: 0.03}},
+    ("o", 87.0, 89.5): {"recipe": {50: 0.18, 95: 1.5}, "lambert": {50: 0.03, 95: 0.35}},
+    ("i", 80.0, 87.0): {"recipe": {50: 0.002, 95: 0.03}, "lambert": {50: 0.002, 95: 0.02}},
+    ("i", 87.0, 89.9): {"recipe": {50: 0.002, 95: 0.045}, "lambert": {50: 0.002, 95: 0.045}},
 }
 
 
@@ -426,7 +426,7 @@ def test_lambert_without_ndf_uses_backscattering(files):
         ref = mitsuba_eval(path, wi, wo)
     rel, _ = rel_errors(ref, model.eval(wi, wo) * wo[:, 2:3], 1e-4)
     # formats/rgl-bsdf.md, Guarantees, table row "Lambert"
-    assert_percentiles("Lambert, Mitsuba vs model", rel, {50: 0.003, 75: 0.006, 90: 0.02, 95: 0.045})
+    assert_percentiles("Lambert, Mitsuba vs model", rel, {50: 0.002, 75: 0.004, 90: 0.008, 95: 0.012})
 
 
 # ---------------------------------------------------------------------------------------------
@@ -881,8 +881,8 @@ def test_f_is_held_near_the_horizon(files):
     """The quotient (f·cosθo)/cosθo grows without bound at grazing ωo; the reader holds f beyond
     θ_hold = 90° − 180°/resolution (formats/rgl-bsdf.md, Guarantees, "f near the horizon"): a
     Lambertian's file then reads within 20 % of its f at every θo, θi <= 80° and azimuth
-    (the file's own error at θ_hold), where the quotient is about 1.3× too large at 89° and
-    8× at 89.9° (medians)."""
+    (the file's own error at θ_hold), where the quotient is right at 89° but about 2.8× too
+    large at 89.9° (medians)."""
     path = files / "lambert-hold.bsdf"
     brdftab.save(create("lambert", albedo=0.99), path)
     ours = brdftab.open(path)
@@ -901,7 +901,7 @@ def test_f_is_held_near_the_horizon(files):
     print(f"held f / (rho/pi): [{held.min():.3f}, {held.max():.3f}]; quotient (median) at 89°, 89.9°: "
           f"{quotient[2]:.2f}, {quotient[4]:.2f}")
     assert np.all(np.abs(held - 1) < 0.2), (held.min(), held.max())
-    assert 1.2 < quotient[2] < 1.45 and 6.5 < quotient[4] < 9, quotient  # the blow-up the hold removes
+    assert 0.97 < quotient[2] < 1.05 and 2.4 < quotient[4] < 3.3, quotient  # the blow-up the hold removes
 
 
 @pytest.mark.parametrize("theta_i", [30.0, 70.0, 89.0])
@@ -985,11 +985,12 @@ def _table(model, grid, path):
 def test_lambert_table_to_bsdf_up_to_grazing(files):
     """A Lambertian (albedo 0.99) *table* written to .bsdf and evaluated by Mitsuba at every θi
     from 0 to 85° in 1° steps (between the file's θi nodes too), azimuths 10° apart: within
-    2 % of ρ/π at θo ≤ 70°, 3.5 % at 75°, 6 % at 80°, 15 % at 85° (formats/rgl-bsdf.md,
-    Guarantees, "Tables"). A warp whose even share was even in the unit square (θm quadratic
-    in the sample coordinate in the first column) and whose rows followed only the area above
-    the horizon read 3.7 % high near the mirror direction at θo = 70°, 4.9 % at 75°, 7.9 % at
-    80°, 26 % at 85°."""
+    2 % of ρ/π at every θo ≤ 80°, 6 % at 85° (formats/rgl-bsdf.md, Guarantees, "Tables").
+    A warp whose even spread was masked to the nodes above the horizon (a mask that moves by
+    whole columns from row to row, bending the warp at those rows at any resolution), whose
+    sample columns crossed the levels of cosθo, and whose row densities differed between θi
+    slices read 1.7 % off at θo = 70°, 3.0 % at 75°, 5.2 % at 80° (worst at θi 5-25°) and
+    14 % at 85°."""
     from brdftab.grids.rusinkiewicz import RusinkiewiczGrid
 
     table = _table(create("lambert", albedo=0.99), RusinkiewiczGrid(30, 30, 60), files / "lambert-table.nc")
@@ -1007,8 +1008,11 @@ def test_lambert_table_to_bsdf_up_to_grazing(files):
     worst = dict(zip(tos, err.tolist()))
     print("Lambert table, Mitsuba, worst |f/(rho/pi) - 1| by θo: "
           + ", ".join(f"{k:g}°: {100 * v:.2f} %" for k, v in worst.items()))
-    bound = {75.0: 0.035, 80.0: 0.06, 85.0: 0.15}
-    assert all(v < bound.get(k, 0.02) for k, v in worst.items()), worst
+    assert all(v < (0.06 if k > 80.0 else 0.02) for k, v in worst.items()), worst
+    # the default 17 θi nodes and the twin of the last one up to 63.5° (step 3), 1e-6 rad above it
+    th = np.degrees(brdftab.open(path).theta_i.astype(float))
+    assert th.size == 18 and np.count_nonzero(np.diff(th) < 1e-3) == 1
+    assert np.diff(th).min() == pytest.approx(np.degrees(1e-6), rel=0.2) and th[np.argmin(np.diff(th))] <= 63.5
 
 
 @pytest.mark.parametrize("spec, p95", [("torrance-sparrow-aluminum", 0.02), ("pyromark-he-torrance", 0.05)])
@@ -1088,11 +1092,12 @@ def test_a_model_without_back_scattering_gets_a_flat_ndf(files):
 
 
 def test_measured_file_round_trip_through_netcdf(files):
-    """A measured-like file in the RGL database's layout (8 θi, 32 × 32 samples, vndf 128 × 128)
-    converted to netCDF and back to .bsdf with the default options: Mitsuba's reading of the
-    new file reproduces the netCDF table at θi, θo ≤ 80° with a median below 1 % and a 95th
-    percentile below 10 %, in a file no more than twice the source's size (formats/rgl-bsdf.md,
-    Guarantees, "Tables")."""
+    """A measured-like file in the RGL database's layout (8 θi, 32 × 32 samples, vndf 128 × 128;
+    brdftab's writer adds a ninth, twin θi slice, formats/rgl-bsdf.md step 3) converted to
+    netCDF and back to .bsdf with the default options: Mitsuba's reading of the new file
+    reproduces the netCDF table at θi, θo ≤ 80° with a median below 1 % and a 95th percentile
+    below 10 %, in a file no more than twice the size of a database file of that layout (the
+    float32 tables alone of 8 θi: 640 kB) (formats/rgl-bsdf.md, Guarantees, "Tables")."""
     from _measured import measured_bsdf
 
     from brdftab.convert import convert
@@ -1113,7 +1118,8 @@ def test_measured_file_round_trip_through_netcdf(files):
     size, source_size = out.stat().st_size, src.stat().st_size
     print(f"sizes: source {source_size} B, written {size} B")
     assert_percentiles("measured-like .bsdf -> .nc -> .bsdf, Mitsuba vs the netCDF table", rel, {50: 0.01, 95: 0.10})
-    assert size <= 2 * source_size
+    database_tables = 4 * 8 * (4 * 32 * 32 + 128 * 128)  # rgb + luminance, vndf: float32, 8 θi
+    assert size <= 2 * min(source_size, database_tables)
 
 
 _SPECS = Path(__file__).resolve().parent.parent / "specs"

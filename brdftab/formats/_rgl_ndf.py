@@ -104,6 +104,7 @@ def backscatter_ndf(brdf, wavelengths=None, *, n_theta=256, n_phi=8, max_iter=50
             h = np.asarray(h, float)
             return np.where(h[..., 2] > 0, 1.0 / np.pi, 0.0)
 
+        flat.no_backscatter = True  # no diffuse-like lobe: the writer uses its general warp
         return flat
     kernel = _azimuthal_kernel(theta, theta) * area[None, :]
     weight = fb * np.cos(theta)

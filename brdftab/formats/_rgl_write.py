@@ -3,10 +3,13 @@ plugin (:func:`prepare_rgl`, :func:`write_rgl`).
 
 Steps (formats/rgl-bsdf.md, "How brdftab writes a file"): the ``ndf`` table is the model's own
 D or one from its back-scattering (:mod:`._rgl_ndf`), raised where another term dominates the
-back-scattering and floored at :data:`NDF_FLOOR`; ``sigma`` is its projected area; the
-``vndf`` field, the warp that places the N × N samples, mixes row by row the visible normals
-of D with an even spread over the half vectors whose ωo is above the horizon (share
-:data:`WARP_UNIFORM`); the stored values are f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with
+back-scattering and floored at :data:`NDF_FLOOR`; ``sigma`` is its projected area (for a D
+from the back-scattering, blended between the θi nodes as the readers blend the slices:
+:func:`_sigma_between_incidences`); the ``vndf`` field, the warp that places the N × N
+samples, mixes row by row the visible normals of D with an even spread over the half vectors
+whose ωo is above the horizon (share :data:`WARP_UNIFORM`; for a D from the back-scattering
+:func:`_broad_spread`, and in isotropic files :func:`_level_warp` up to
+:data:`LEVEL_MAX_THETA_I`, with one more θi slice: :func:`_level_incidences`); the stored values are f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with
 σ̂, D̂ the interpolants the readers evaluate, so that every reader returns f·cosθo exactly at
 the nodes; ``luminance`` is the luminance of f·cosθo per unit area of the unit square, so that
 Mitsuba samples ωo in proportion to f·cosθo.
@@ -53,6 +56,30 @@ WARP_COS = 0.25
 #: marginal over the rows (φm) placed in equal steps of cosθo between rows
 #: (:func:`_vndf_table`, ``broad``).
 WARP_ROWS_COS = 0.5
+#: For a D from the back-scattering, the even spread continues below the horizon, falling
+#: linearly to 0 at cosθo = −WARP_BELOW (:func:`_broad_spread`).
+WARP_BELOW = 0.5
+#: For a D from the back-scattering, the part of the rows' density that follows the change of
+#: cosθo between rows has this floor, relative to its change along the rows (:func:`_broad_spread`).
+WARP_ROWS_FLOOR = 0.1
+#: For a D from the back-scattering (isotropic files), the incidences up to this elevation
+#: [rad] get the level warp (:func:`_level_warp`), those above it the spread with
+#: :data:`GRAZING_UNIFORM` and :data:`GRAZING_ROWS_COS`; the file gets a twin of the last
+#: level incidence :data:`LEVEL_TWIN` rad above it, with the grazing warp
+#: (:func:`_level_incidences`).
+LEVEL_MAX_THETA_I = np.radians(63.5)
+LEVEL_TWIN = 1e-6
+#: Level warp: the share of every row per unit of cosθo in its band (κ); the band has full
+#: weight below LEVEL_TOP·cosθi and fades to 0 at min(LEVEL_FADE, LEVEL_FADE_REL·cosθi)
+#: above (below cosθi, where every row starts, so that every row crosses the band once,
+#: falling); below the horizon it fades to 0 at −min(:data:`WARP_BELOW`, cosθi).
+LEVEL_KAPPA = 0.5
+LEVEL_TOP = 0.6
+LEVEL_FADE, LEVEL_FADE_REL = 0.8, 0.9
+#: For a D from the back-scattering, above :data:`LEVEL_MAX_THETA_I`: the share ε of the
+#: spread, and the share of its marginal over the rows in equal steps of cosθo between rows.
+GRAZING_UNIFORM = 0.7
+GRAZING_ROWS_COS = 1.0
 
 
 @dataclass
@@ -152,7 +179,7 @@ def _ndf_tables(ndf, warp_ndf, nx, ny, anisotropic, name):
     return d_warp, ndf32, sigma32
 
 
-def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False):
+def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False, level=None):
     """The ``vndf`` field ``[Nφi, Nθi, nv, nv]``, float32: the density over u_m of the warp.
 
     The visible normals V = D(m)⟨ωi·m⟩₊ J, with J = 2π² u_x sinθm (the Jacobian of u -> m),
@@ -164,13 +191,9 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False):
     for isotropic files, absolute for anisotropic ones.
 
     ``broad`` (a D from the back-scattering, whose visible normals do not concentrate the
-    samples where f·cosθo changes): the share :data:`WARP_SQUARE` is even in θm rather than in
-    the square (density ∝ x ∝ dθm/dx), so that θm, hence ωo, is linear in the sample
-    coordinate in the first column instead of quadratic (a Lambertian read 2-5 % high near the
-    mirror direction of θi ≥ 60° between the θi nodes); and a share :data:`WARP_ROWS_COS` of
-    E's marginal over the rows follows the change of cosθo from row to row (row mean of
-    |∂cosθo/∂y| over the above-horizon nodes): at grazing incidence the rows near φm = π, where
-    ωo barely moves, no longer take the rows that the steep rise of θo before them needs.
+    samples where f·cosθo changes): :func:`_broad_spread` instead of E; with ``level`` (bool
+    ``[Nθi]``, isotropic files) the θi slices where it is true get :func:`_level_warp` of that
+    mix, the others the mix with ε = :data:`GRAZING_UNIFORM` and :data:`GRAZING_ROWS_COS`.
     """
     eps = WARP_UNIFORM if uniform is None else uniform
     g = np.linspace(0.0, 1.0, nv)
@@ -179,30 +202,124 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False):
     m = sph(th_m, u2phi(vy))
     jac = (2.0 * np.pi ** 2) * vx * np.sin(th_m)
     wi = sph(th_i[None, :], ph_i[:, None])  # [Nφi, Nθi, 3]
-    dot = np.maximum(np.einsum("yxk,abk->abyx", m, wi), 0.0)
+    cos_im = np.einsum("yxk,abk->abyx", m, wi)
+    dot = np.maximum(cos_im, 0.0)
+    vndf = _unit_mean(dot * (d(m) * jac)[None, None])
+    if eps <= 0:
+        return vndf.astype(np.float32)
+    if broad:
+        even, rows_b = _broad_spread(cos_im, m, wi, vx, jac)
+        if level is None:
+            return _mix_per_row(vndf, even, eps, rows_b).astype(np.float32)
+        lev = np.asarray(level, bool)
+        grazing = ~lev[None, :, None, None]
+        rows_b = (np.where(grazing, GRAZING_ROWS_COS, rows_b[0]), rows_b[1])
+        out = _mix_per_row(vndf, even, np.where(grazing, GRAZING_UNIFORM, eps), rows_b)
+        if lev.any():
+            out[:, lev] = _level_warp(out[:, lev], cos_im[:, lev], m, wi[:, lev], vx)
+        return out.astype(np.float32)
+    wo_z = 2.0 * dot * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
+    above = (wo_z > 0) & (dot > 0)
+    in_wo = _unit_mean(np.where(above, dot * jac[None, None], 0.0))
+    even = WARP_SQUARE * _unit_mean(np.where(above, 1.0, 0.0)) + (1.0 - WARP_SQUARE - WARP_COS) * in_wo
+    # equal steps of cosθo along each row (rows where it does not change: even)
+    dc = np.where(above, np.abs(np.gradient(np.where(above, wo_z, 0.0), axis=3)), 0.0)
+    rows = dc.mean(axis=3, keepdims=True)
+    even = even + WARP_COS * _unit_mean(np.where(rows > 0, dc, np.where(above, 1.0, 0.0)))
+    return _mix_per_row(vndf, even, eps).astype(np.float32)
 
-    def unit_mean(a):
-        return a / a.mean(axis=(2, 3), keepdims=True)
 
-    vndf = unit_mean(dot * (d(m) * jac)[None, None])
-    if eps > 0:
-        wo_z = 2.0 * dot * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
-        above = (wo_z > 0) & (dot > 0)
-        in_wo = unit_mean(np.where(above, dot * jac[None, None], 0.0))
-        even = WARP_SQUARE * unit_mean(np.where(above, vx if broad else 1.0, 0.0)) \
-            + (1.0 - WARP_SQUARE - WARP_COS) * in_wo
-        # equal steps of cosθo along each row (rows where it does not change: even)
-        dc = np.where(above, np.abs(np.gradient(np.where(above, wo_z, 0.0), axis=3)), 0.0)
-        rows = dc.mean(axis=3, keepdims=True)
-        even = even + WARP_COS * unit_mean(np.where(rows > 0, dc, np.where(above, 1.0, 0.0)))
-        rows_b = None
-        if broad:  # equal steps of cosθo between rows (incidences where it does not change: even)
-            dy = np.where(above, np.abs(np.gradient(np.where(above, wo_z, 0.0), axis=2)), 0.0)
-            dy = dy.mean(axis=3, keepdims=True)
-            mean = dy.mean(axis=2, keepdims=True)
-            rows_b = (WARP_ROWS_COS, np.where(mean > 0, dy / np.where(mean > 0, mean, 1.0), 1.0))
-        vndf = _mix_per_row(vndf, even, eps, rows_b)
-    return vndf.astype(np.float32)
+def _unit_mean(a):
+    """``a`` scaled to mean 1 over each slice (the last two axes)."""
+    return a / a.mean(axis=(2, 3), keepdims=True)
+
+
+def _broad_spread(cos_im, m, wi, vx, jac):
+    """The even spread E of a warp for a D from the back-scattering, and its row density.
+
+    Every part is a continuous function of the half vector, so that the bilinear ``vndf``
+    table changes smoothly from row to row. A mask of the nodes whose ωo is above the horizon
+    (what the spread of a model's own D uses) moves by whole columns from one row to the next:
+    the conditional along x of the rows on either side of such a row differ by a node's share,
+    and the warp bends at every such ``vndf`` row, by the same angle at any resolution.
+
+    Weight a = clip(1 + cosθo/:data:`WARP_BELOW`, 0, 1) on ωo = reflect(ωi, m), continued
+    below the horizon (cosθo computed from the signed ωi·m): full above the horizon, falling to
+    0 at cosθo = −WARP_BELOW. E is a share :data:`WARP_SQUARE` of a·x (even in θm, so that θm
+    and hence ωo are linear in the sample coordinate in the first column), :data:`WARP_COS` of
+    a·|∂cosθo/∂x| (equal steps of cosθo along each row) and the rest a·⟨ωi·m⟩₊ J (even in ωo).
+    Its marginal over the rows takes a share :data:`WARP_ROWS_COS` in proportion to the row
+    mean of a·|∂cosθo/∂y| plus :data:`WARP_ROWS_FLOOR` times the slice mean of a·|∂cosθo/∂x|
+    (equal steps of cosθo between rows; the floor makes it even as θi -> 0, where ∂cosθo/∂y
+    vanishes, rather than a |sin φm| shape at any θi > 0 and even at θi = 0, which the reader's
+    blending between the first two θi slices does not follow).
+    """
+    wo_z = 2.0 * cos_im * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
+    a = np.clip(1.0 + wo_z / WARP_BELOW, 0.0, 1.0)
+    dc = a * np.abs(np.gradient(wo_z, axis=3))
+    even = WARP_SQUARE * _unit_mean(a * vx) + WARP_COS * _unit_mean(dc) \
+        + (1.0 - WARP_SQUARE - WARP_COS) * _unit_mean(a * np.maximum(cos_im, 0.0) * jac[None, None])
+    dy = (a * np.abs(np.gradient(wo_z, axis=2))).mean(axis=3, keepdims=True)
+    dy = dy + WARP_ROWS_FLOOR * dc.mean(axis=(2, 3), keepdims=True)
+    return even, (WARP_ROWS_COS, dy / dy.mean(axis=2, keepdims=True))
+
+
+def _trapezoid_rows(a):
+    """The integral over x of every row of ``a`` (``[..., H, W]`` -> ``[..., H, 1]``), by the
+    trapezoid rule on the table's nodes, as the reader's warp integrates it."""
+    return (a[..., 1:] + a[..., :-1]).sum(axis=-1, keepdims=True) * (0.5 / (a.shape[-1] - 1))
+
+
+def _level_warp(base, cos_im, m, wi, vx):
+    """The warp of an incidence up to :data:`LEVEL_MAX_THETA_I` for a D from the back-scattering
+    (``base``: the mix of :func:`_vndf_table`): every row ends with cosθo in equal steps.
+
+    Along a row (φm fixed) cosθo = P sin2θm + cosθi cos2θm (P = ωi,x cosφm + ωi,y sinφm)
+    starts at cosθi, rises to its peak (when P > 0), then falls once, to its trough. Each row is
+    [head | band | rest]: the band is the falling part from c_top = :data:`LEVEL_TOP`·cosθi
+    (faded in from c_fade) down to −min(:data:`WARP_BELOW`, cosθi) (faded out), a share
+    :data:`LEVEL_KAPPA` of the row per unit of cosθo; the head (all before it) holds ``base``'s
+    density with the same share in every row; the rest (after the band, below the horizon) what
+    remains. The sample coordinate x of a level of cosθo in the band is then the same in every
+    row, and from one incidence to the next it shifts by an offset only (the same share per
+    unit of cosθo): lines of equal cosθo are sample columns, f·cosθo of a diffuse surface is
+    linear in x there, and the reader's linear blending of two incidences is affine in cosθo.
+    The rows are even in φm: row densities that differ between incidences weight the two
+    slices' conditionals unequally in the reader's blend. (A warp whose sample columns crossed
+    the levels of cosθo, with rows that differed between incidences, read a Lambertian table
+    5.2 % off at θo = 80°: tests/test_rgl.py::test_lambert_table_to_bsdf_up_to_grazing.)
+    """
+    wo_z = 2.0 * cos_im * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
+    th_m = u2theta(vx)[None, None]
+    sin_m = np.sin(th_m)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        p = (wi[:, :, 0][:, :, None, None] * m[None, None, :, :, 0]
+             + wi[:, :, 1][:, :, None, None] * m[None, None, :, :, 1]) / sin_m
+    p[..., 0] = p[..., 1]  # θm = 0: the azimuth of the next column
+    cz = wi[:, :, 2][:, :, None, None]
+    psi = np.arctan2(p, cz)
+    after = th_m >= 0.5 * np.maximum(psi, 0.0)  # past the peak
+    falling = after & (th_m <= 0.5 * (psi + np.pi))  # and before the trough
+    c_top = LEVEL_TOP * cz
+    c_fade = np.minimum(LEVEL_FADE, LEVEL_FADE_REL * cz)
+    below = np.minimum(WARP_BELOW, cz)
+    top = np.clip((c_fade - wo_z) / (c_fade - c_top), 0.0, 1.0)
+    bottom = np.clip(1.0 + wo_z / below, 0.0, 1.0)
+    slope = np.abs(np.gradient(wo_z, 1.0 / (vx.shape[1] - 1), axis=3))
+    band = LEVEL_KAPPA * np.where(falling, top * bottom, 0.0) * slope
+    head = base * np.where(after, 1.0 - top, 1.0)
+    rest = base * np.where(after, top, 0.0) * (1.0 - np.where(falling, bottom, 0.0))
+    # the band of a row that spans it all, and the head's share (the same in every row)
+    head_share = 1.0 - LEVEL_KAPPA * (0.5 * (c_fade - c_top) + c_top + 0.5 * below)[..., :1, :1]
+    band_share = _trapezoid_rows(band)
+    rest_share = np.maximum(1.0 - head_share - band_share, 0.0)
+
+    def scaled(a, share):
+        total = _trapezoid_rows(a)
+        return np.where(total > 0, a * share / np.where(total > 0, total, 1.0), 0.0)
+
+    cond = scaled(head, head_share) + band + scaled(rest, rest_share)
+    return cond / cond.mean(axis=(2, 3), keepdims=True)
 
 
 def _mix_per_row(a, b, eps, rows_b=None):
@@ -223,6 +340,51 @@ def _mix_per_row(a, b, eps, rows_b=None):
     has_b = rb > 0
     cond = np.where(has_b, (1.0 - eps) * ca + eps * cb, ca)
     return ((1.0 - eps) * ra + eps * rb) * cond
+
+
+def _sigma_between_incidences(sigma32, th_i):
+    """The ``sigma`` table of an isotropic D, linear in θi between the file's θi nodes (and σ
+    itself outside them), float32.
+
+    The reader blends two θi slices linearly and divides by 4σ̂ at the θi it evaluates: the
+    stored values hold 4σ̂ at their own node, so that the value read is the true one times
+    lerp(σ)/σ̂, which for σ itself (concave in θi, like cosθi) is 0.2 % low halfway between
+    the default nodes near the normal. It is further multiplied by (1 − w)·cos(wΔ) +
+    w·cos((1 − w)Δ) between nodes Δ apart (w the blending weight): the ratio of the linear blend
+    of cos(θi − α) to its value, whatever α. At a fixed half vector cosθo is such a sinusoid of
+    θi, so the reader's blend of f·cosθo falls short by that ratio (0.2 % halfway between the
+    default nodes near the normal), and dividing by a σ̂ lowered by it makes up for it. Any
+    positive ``sigma`` is valid: the readers use it only to divide the stored values, which the
+    writer made with it. (Without both, the albedo of a Lambertian's file was 0.28 % low at
+    θi = 20°: tests/test_rgl.py::test_lambert_file_albedo_up_to_grazing_incidence.)"""
+    nx = sigma32.shape[1]
+    theta = u2theta(np.linspace(0.0, 1.0, nx))
+    true = sigma32[0].astype(np.float64)
+    at_nodes = np.interp(theta2u(th_i), np.linspace(0.0, 1.0, nx), true)
+    inside = (theta >= th_i[0]) & (theta <= th_i[-1])
+    row = np.where(inside, np.interp(theta, th_i, at_nodes), true)
+    k = np.clip(np.searchsorted(th_i, theta, side="right") - 1, 0, th_i.size - 2)
+    step = th_i[k + 1] - th_i[k]
+    w = np.clip((theta - th_i[k]) / step, 0.0, 1.0)
+    row = row * np.where(inside, (1.0 - w) * np.cos(w * step) + w * np.cos((1.0 - w) * step), 1.0)
+    return np.broadcast_to(row, sigma32.shape).astype(np.float32)
+
+
+def _level_incidences(theta_i):
+    """The θi nodes of a file whose D is from the back-scattering, float32, and which of them
+    get the level warp (:func:`_level_warp`): those up to :data:`LEVEL_MAX_THETA_I`. When
+    nodes lie on both sides, a twin of the last level node, :data:`LEVEL_TWIN` above it, gets
+    the grazing warp, so that the reader's blending between the two kinds of slice (whose
+    sample coordinates mean different directions) is confined to that sliver of θi."""
+    th = theta_i.astype(np.float64)
+    level = th <= LEVEL_MAX_THETA_I
+    if level.any() and not level.all():
+        k = int(np.flatnonzero(level)[-1])
+        twin = np.float32(th[k] + LEVEL_TWIN)
+        if twin < theta_i[k + 1]:
+            theta_i = np.insert(theta_i, k + 1, twin)
+            level = np.insert(level, k + 1, False)
+    return theta_i, level
 
 
 def _luminance(spectra32, lam, weight):
@@ -317,6 +479,12 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
     ndf, source = _choose_ndf(brdf, opts["ndf"], lam)
 
     theta_i = opts["theta_i"].astype(np.float32)
+    # a D from the back-scattering (with a lobe: not the flat D of a BRDF that scatters nothing
+    # back) gets the spread for broad reflectance, and in isotropic files the level warp
+    broad = source == "backscatter" and not getattr(ndf, "no_backscatter", False)
+    level = None
+    if broad and not anisotropic:
+        theta_i, level = _level_incidences(theta_i)
     phi_i = (np.linspace(-np.pi, np.pi, opts["n_phi_i"]) if anisotropic else np.zeros(1)).astype(np.float32)
     _check_size(brdf, phi_i.size * theta_i.size, opts, 3 if lam is None else lam.size)
     th_i, ph_i = theta_i.astype(np.float64), phi_i.astype(np.float64)
@@ -325,8 +493,10 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
     table_ndf = backscatter_bound(brdf, ndf, lam, opts["ndf_resolution"], ny, anisotropic) \
         if source == "model" else ndf
     d, ndf32, sigma32 = _ndf_tables(table_ndf, ndf, opts["ndf_resolution"], ny, anisotropic, brdf.name)
+    if level is not None:
+        sigma32 = _sigma_between_incidences(sigma32, th_i)
     ndf_interp, sigma_interp = bilinear(ndf32), bilinear(sigma32)
-    vndf32 = _vndf_table(d, th_i, ph_i, opts["vndf_resolution"], broad=source == "backscatter")
+    vndf32 = _vndf_table(d, th_i, ph_i, opts["vndf_resolution"], broad=broad, level=level)
     warp = Marginal2D(vndf32, (phi_i, theta_i))
 
     # f·cosθo·4σ̂/D̂ at the warped nodes (0 where ωo is below the horizon)
