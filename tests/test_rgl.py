@@ -974,6 +974,11 @@ def test_lambert_file_albedo_up_to_grazing_incidence(files):
 # tables written to .bsdf: the file follows the table's own values
 
 
+def _warp(path):
+    """The warp brdftab's writer chose for the file at ``path`` (its provenance)."""
+    return json.loads(bytes(brdftab.open(path).fields["provenance"]).decode())["warp"]
+
+
 def _table(model, grid, path):
     from brdftab.table import tabulate
 
@@ -1035,6 +1040,7 @@ def test_shipped_tables_convert_to_bsdf(files, spec, p95):
     table = _table(model, grid_from_config(cfg["grid"]), files / f"{spec}.nc")
     out = files / f"{spec}.bsdf"
     convert(files / f"{spec}.nc", out, overwrite=True, progress=False)  # raises when refused
+    assert _warp(out) == "lobe"  # the warp that reproduces these lobes better (formats/rgl-bsdf.md, step 3)
     wi, wo = direction_pairs(7, 0.1, 0.1, 600)
     keep = (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
     wi, wo = wi[keep], wo[keep]
@@ -1093,7 +1099,7 @@ def test_a_model_without_back_scattering_gets_a_flat_ndf(files):
 
 def test_measured_file_round_trip_through_netcdf(files):
     """A measured-like file in the RGL database's layout (8 θi, 32 × 32 samples, vndf 128 × 128;
-    brdftab's writer adds a ninth, twin θi slice, formats/rgl-bsdf.md step 3) converted to
+    with the level warp brdftab's writer adds a ninth, twin θi slice, formats/rgl-bsdf.md step 3) converted to
     netCDF and back to .bsdf with the default options: Mitsuba's reading of the new file
     reproduces the netCDF table at θi, θo ≤ 80° with a median below 1 % and a 95th percentile
     below 10 %, in a file no more than twice the size of a database file of that layout (the
@@ -1106,6 +1112,7 @@ def test_measured_file_round_trip_through_netcdf(files):
     measured_bsdf(src, resolution=32, vndf_resolution=128)
     convert(src, nc, progress=False)
     convert(nc, out, progress=False)
+    assert _warp(out) == "lobe"
     table = brdftab.open(nc)
     wi, wo = direction_pairs(11, 0.25, 0.25, 800)
     keep = (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
@@ -1373,3 +1380,33 @@ def test_a_warp_fixed_at_one_incidence_is_the_same_warp(files, anisotropic):
         for a, b in zip(warp.invert(u, params), one.invert(u)):
             np.testing.assert_array_equal(a, b)
         np.testing.assert_array_equal(warp.eval(u, params), one.eval(u))
+
+
+def test_auto_warp_writes_the_file_closer_to_the_table(files):
+    """A table's D comes from its back-scattering; its file gets the level warp or the lobe warp
+    (option ``warp``), ``auto`` the one whose reading reproduces the table better
+    (formats/rgl-bsdf.md, step 3): the Lambertian table gets the level warp, a glossy table
+    (GGX α = 0.1 over a Lambertian) the lobe warp, and at independent pairs the file ``auto``
+    writes is the closer of the two (the level warp's band of cosθo takes half of every row
+    from the lobe)."""
+    from brdftab.grids.rusinkiewicz import RusinkiewiczGrid
+
+    glossy = create("sum", terms=[create("lambert", albedo=0.1),
+                                  create("microfacet", alpha=0.1, fresnel="schlick", f0=[0.9, 0.6, 0.3])])
+    wi, wo = direction_pairs(23, 0.1, 0.1, 2000)
+    keep = (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
+    wi, wo = wi[keep], wo[keep]
+    for name, model, want in (("lambert", create("lambert", albedo=0.99), "level"), ("glossy", glossy, "lobe")):
+        table = _table(model, RusinkiewiczGrid(30, 30, 60), files / f"warp-{name}.nc")
+        ref = np.asarray(table.eval(wi, wo), float)
+        err = {}
+        for warp in ("auto", "level", "lobe"):
+            path = files / f"warp-{name}-{warp}.bsdf"
+            brdftab.save(table, path, warp=warp)
+            read = brdftab.open(path)
+            err[warp] = float(np.median(np.abs(np.asarray(read.eval(wi, wo), float) / ref - 1)))
+            if warp == "auto":
+                chosen = _warp(path)
+        print(f"{name}: auto chose {chosen}; median error level {100 * err['level']:.3f} %, "
+              f"lobe {100 * err['lobe']:.3f} %")
+        assert chosen == want and err["auto"] == err[want] and err[want] < err["level" if want == "lobe" else "lobe"]

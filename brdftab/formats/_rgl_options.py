@@ -9,7 +9,7 @@ import numpy as np
 from ..errors import ParameterError
 from ..params import Param, suggest
 
-__all__ = ["DEFAULTS", "OPTIONS", "PARAMS", "NDF_CHOICES", "MAX_RESOLUTION", "check_options", "theta_i_nodes"]
+__all__ = ["DEFAULTS", "OPTIONS", "PARAMS", "NDF_CHOICES", "WARP_CHOICES", "MAX_RESOLUTION", "check_options", "theta_i_nodes"]
 
 #: Default resolutions (format options).
 DEFAULTS = {
@@ -24,6 +24,10 @@ DEFAULTS = {
 MAX_RESOLUTION = 4096
 
 NDF_CHOICES = ("auto", "model", "backscatter")
+#: The warp of a file whose D comes from the back-scattering (tables, Lambert): ``level``
+#: (sample columns along levels of cosθo: broad reflectance), ``lobe`` (the spread even in θm
+#: beside the visible normals: lobes), or ``auto``, the one that reproduces the source better.
+WARP_CHOICES = ("auto", "level", "lobe")
 
 #: The format options, declared once: names, kinds, ranges and documentation (``brdftab formats
 #: rgl``); :func:`check_options` adds the rules between them and fills in the defaults.
@@ -49,6 +53,9 @@ PARAMS = (
           "isotropy).", default=None),
     Param("ndf", "choice", "auto (the model's own D, else from back-scattering) | model | backscatter.",
           default="auto", choices=NDF_CHOICES),
+    Param("warp", "choice", "A D from the back-scattering (tables, Lambert), isotropic files: auto (the warp "
+          "that reproduces the source better at check pairs) | level (broad reflectance) | lobe (lobes).",
+          default="auto", choices=WARP_CHOICES),
     Param("wavelengths_nm", "floats", "Spectral models: wavelengths of the 'spectra' field in nm (default: the "
           "model's own).", units="nm", default=None, minimum=0.0, exclusive_minimum=True),
     Param("description", "text", "Text of the 'description' field (default: the model).", default=None),
@@ -101,7 +108,7 @@ def check_options(**options) -> dict:
 
 def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_phi_i=None, resolution=None,
                   vndf_resolution=None, ndf_resolution=None, ndf_phi_resolution=None, anisotropic=None, ndf="auto",
-                  wavelengths_nm=None, description=None):
+                  wavelengths_nm=None, description=None, warp="auto"):
     out = {}
     if theta_i_deg is not None:
         if n_theta_i is not None or theta_i_max_deg is not None:
@@ -135,6 +142,9 @@ def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_p
     if ndf not in NDF_CHOICES:
         raise ParameterError("ndf", f"expected one of {', '.join(NDF_CHOICES)}, got {ndf!r}")
     out["ndf"] = ndf
+    if warp not in WARP_CHOICES:
+        raise ParameterError("warp", f"expected one of {', '.join(WARP_CHOICES)}, got {warp!r}")
+    out["warp"] = warp
     if wavelengths_nm is not None:
         lam = _numbers("wavelengths_nm", wavelengths_nm)
         if np.any(lam <= 0) or np.any(np.diff(lam) <= 0):

@@ -179,7 +179,7 @@ def _ndf_tables(ndf, warp_ndf, nx, ny, anisotropic, name):
     return d_warp, ndf32, sigma32
 
 
-def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False, level=None):
+def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False, level=None, lobe=False):
     """The ``vndf`` field ``[Nφi, Nθi, nv, nv]``, float32: the density over u_m of the warp.
 
     The visible normals V = D(m)⟨ωi·m⟩₊ J, with J = 2π² u_x sinθm (the Jacobian of u -> m),
@@ -194,6 +194,11 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False, level=None):
     samples where f·cosθo changes): :func:`_broad_spread` instead of E; with ``level`` (bool
     ``[Nθi]``, isotropic files) the θi slices where it is true get :func:`_level_warp` of that
     mix, the others the mix with ε = :data:`GRAZING_UNIFORM` and :data:`GRAZING_ROWS_COS`.
+    ``broad`` and ``lobe`` (the ``lobe`` warp): E over the nodes above the horizon, with its
+    share :data:`WARP_SQUARE` even in θm rather than in the square (θm, hence ωo, linear in
+    the sample coordinate in the first column) and a share :data:`WARP_ROWS_COS` of its
+    marginal over the rows in equal steps of cosθo between rows; it keeps more samples on a
+    lobe than the level warp, whose band of cosθo takes half of every row.
     """
     eps = WARP_UNIFORM if uniform is None else uniform
     g = np.linspace(0.0, 1.0, nv)
@@ -207,7 +212,7 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False, level=None):
     vndf = _unit_mean(dot * (d(m) * jac)[None, None])
     if eps <= 0:
         return vndf.astype(np.float32)
-    if broad:
+    if broad and not lobe:
         even, rows_b = _broad_spread(cos_im, m, wi, vx, jac)
         if level is None:
             return _mix_per_row(vndf, even, eps, rows_b).astype(np.float32)
@@ -221,12 +226,19 @@ def _vndf_table(d, th_i, ph_i, nv, uniform=None, broad=False, level=None):
     wo_z = 2.0 * dot * m[None, None, :, :, 2] - wi[:, :, 2][:, :, None, None]
     above = (wo_z > 0) & (dot > 0)
     in_wo = _unit_mean(np.where(above, dot * jac[None, None], 0.0))
-    even = WARP_SQUARE * _unit_mean(np.where(above, 1.0, 0.0)) + (1.0 - WARP_SQUARE - WARP_COS) * in_wo
+    even = WARP_SQUARE * _unit_mean(np.where(above, vx if broad else 1.0, 0.0)) \
+        + (1.0 - WARP_SQUARE - WARP_COS) * in_wo
     # equal steps of cosθo along each row (rows where it does not change: even)
     dc = np.where(above, np.abs(np.gradient(np.where(above, wo_z, 0.0), axis=3)), 0.0)
     rows = dc.mean(axis=3, keepdims=True)
     even = even + WARP_COS * _unit_mean(np.where(rows > 0, dc, np.where(above, 1.0, 0.0)))
-    return _mix_per_row(vndf, even, eps).astype(np.float32)
+    rows_b = None
+    if broad:  # the lobe warp: equal steps of cosθo between rows (where it does not change: even)
+        dy = np.where(above, np.abs(np.gradient(np.where(above, wo_z, 0.0), axis=2)), 0.0)
+        dy = dy.mean(axis=3, keepdims=True)
+        mean = dy.mean(axis=2, keepdims=True)
+        rows_b = (WARP_ROWS_COS, np.where(mean > 0, dy / np.where(mean > 0, mean, 1.0), 1.0))
+    return _mix_per_row(vndf, even, eps, rows_b).astype(np.float32)
 
 
 def _unit_mean(a):
@@ -478,12 +490,31 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
     _check_coverage(brdf, opts["theta_i"])
     ndf, source = _choose_ndf(brdf, opts["ndf"], lam)
 
-    theta_i = opts["theta_i"].astype(np.float32)
     # a D from the back-scattering (with a lobe: not the flat D of a BRDF that scatters nothing
-    # back) gets the spread for broad reflectance, and in isotropic files the level warp
+    # back) gets a spread for broad reflectance: the level warp or the lobe warp in isotropic
+    # files (option warp; auto: the one that reproduces the source better), the smooth spread
+    # or the lobe warp in anisotropic ones
     broad = source == "backscatter" and not getattr(ndf, "no_backscatter", False)
+    if not broad:
+        kinds = ("model",)
+    else:
+        first = "smooth" if anisotropic else "level"
+        kinds = (first, "lobe") if opts["warp"] == "auto" else ("lobe" if opts["warp"] == "lobe" else first,)
+    candidates = [_fields(brdf, opts, lam, ndf, source, anisotropic, k) for k in kinds]
+    fields = candidates[0] if len(candidates) == 1 else _closest(brdf, lam, candidates)
+    return RGLPayload(fields)
+
+
+def _fields(brdf, opts, lam, ndf, source, anisotropic, kind) -> dict:
+    """The fields of a file of ``brdf`` with the warp ``kind``: ``model`` (a model's own D, or
+    the flat D of a BRDF without back-scattering), ``level`` / ``lobe`` (a D from the
+    back-scattering in an isotropic file: :func:`_level_warp` with a twin θi slice, or the
+    lobe spread of :func:`_vndf_table`) or ``smooth`` (a D from the back-scattering in an
+    anisotropic file: :func:`_broad_spread`)."""
+    theta_i = opts["theta_i"].astype(np.float32)
+    broad = kind in ("level", "lobe", "smooth")
     level = None
-    if broad and not anisotropic:
+    if kind == "level":
         theta_i, level = _level_incidences(theta_i)
     phi_i = (np.linspace(-np.pi, np.pi, opts["n_phi_i"]) if anisotropic else np.zeros(1)).astype(np.float32)
     _check_size(brdf, phi_i.size * theta_i.size, opts, 3 if lam is None else lam.size)
@@ -496,7 +527,7 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
     if level is not None:
         sigma32 = _sigma_between_incidences(sigma32, th_i)
     ndf_interp, sigma_interp = bilinear(ndf32), bilinear(sigma32)
-    vndf32 = _vndf_table(d, th_i, ph_i, opts["vndf_resolution"], broad=broad, level=level)
+    vndf32 = _vndf_table(d, th_i, ph_i, opts["vndf_resolution"], broad=broad, level=level, lobe=kind == "lobe")
     warp = Marginal2D(vndf32, (phi_i, theta_i))
 
     # f·cosθo·4σ̂/D̂ at the warped nodes (0 where ωo is below the horizon)
@@ -536,6 +567,7 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
         "brdftab_version": __version__,
         "created": _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat(),
         "ndf_source": source,
+        "warp": kind,
         "isotropic": bool(brdf.isotropic),
         "reciprocal": bool(brdf.reciprocal),
         "origin": str(getattr(brdf, "origin", "analytic")),
@@ -558,7 +590,53 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
         fields["spectra"] = spectra32
         fields["wavelengths"] = lam.astype(np.float32)
     fields["provenance"] = _text(json.dumps(provenance, sort_keys=True, default=_json_default))
-    return RGLPayload(fields)
+    return fields
+
+
+#: Direction pairs at which ``warp = "auto"`` compares the candidate warps with the source.
+WARP_CHECK_PAIRS = 4000
+
+
+def _closest(brdf, lam, candidates) -> dict:
+    """Of candidate files' fields, the one whose reading (brdftab's reader, Mitsuba's to float32)
+    reproduces ``brdf`` best at :data:`WARP_CHECK_PAIRS` pairs with θi, θo ≤ 80° (half uniform
+    in solid angle, half near the mirror direction, reflected about normals whose slopes have a
+    standard deviation log-uniform in [0.01, 0.5]): the lowest of max(median / 1 %, 95th
+    percentile / 10 %) of the relative error of f where f is above 1e-3 of its 99th
+    percentile, the targets of a table's round trip (formats/rgl-bsdf.md, "Tables"). Seeded:
+    the same source gives the same file."""
+    rng = np.random.default_rng(0)
+    n = WARP_CHECK_PAIRS
+    c80 = np.cos(np.radians(80.0))
+
+    def hemisphere(k):
+        z = rng.uniform(c80, 1.0, k)
+        phi = rng.uniform(0.0, 2.0 * np.pi, k)
+        r = np.sqrt(1.0 - z * z)
+        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+    wi, wo = hemisphere(n), hemisphere(n)
+    half = n // 2
+    slopes = rng.normal(size=(half, 2)) * np.exp(rng.uniform(np.log(0.01), np.log(0.5), half))[:, None]
+    m = np.concatenate([-slopes, np.ones((half, 1))], axis=1)
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    near = 2.0 * np.sum(wi[:half] * m, axis=1, keepdims=True) * m - wi[:half]
+    keep = near[:, 2] >= c80
+    wo[:half][keep] = near[keep]
+    ref = np.asarray(brdf.eval(wi, wo, lam), float)
+    ok = np.isfinite(ref).all(axis=-1)
+    ref = ref[ok]
+    big = np.abs(ref) > 1e-3 * np.percentile(np.abs(ref), 99) if ref.size else np.zeros(0, bool)
+    best, best_score = candidates[0], np.inf
+    for fields in candidates:
+        got = np.asarray(RGLBSDF(fields, "<candidate>").eval(wi[ok], wo[ok], lam), float)
+        if got.shape[-1] != ref.shape[-1]:  # a grey source written to R, G and B
+            got = got[..., :ref.shape[-1]]
+        rel = np.abs(got[big] - ref[big]) / np.abs(ref[big])
+        score = max(np.median(rel) / 0.01, np.percentile(rel, 95) / 0.10) if rel.size else 0.0
+        if score < best_score:
+            best, best_score = fields, score
+    return best
 
 
 def _text(s: str) -> np.ndarray:
