@@ -629,7 +629,12 @@ def _closest(brdf, lam, candidates) -> dict:
     big = np.abs(ref) > 1e-3 * np.percentile(np.abs(ref), 99) if ref.size else np.zeros(0, bool)
     best, best_score = candidates[0], np.inf
     for fields in candidates:
-        got = np.asarray(RGLBSDF(fields, "<candidate>").eval(wi[ok], wo[ok], lam), float)
+        try:
+            got = np.asarray(RGLBSDF(fields, "<candidate>").eval(wi[ok], wo[ok], lam), float)
+        except BrdftabError:  # fields a reader refuses (e.g. values beyond float32): the checks of
+            continue          # the file written say so, not this choice
+        if not np.isfinite(got).all():
+            continue
         if got.shape[-1] != ref.shape[-1]:  # a grey source written to R, G and B
             got = got[..., :ref.shape[-1]]
         rel = np.abs(got[big] - ref[big]) / np.abs(ref[big])
