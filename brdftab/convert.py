@@ -70,8 +70,8 @@ CHECK_POINTS = 4096
 RESAMPLING_BOUND = {"median": 0.02, "p95": 0.10}
 #: θh node counts the default grid of an isotropic source in a format's own layout is refined
 #: to, in turn, while the resampled table exceeds :data:`RESAMPLING_BOUND` (its 90 MERL-spaced
-#: θh nodes are 0.15-0.2° apart at 0.5°: a lobe under a degree falls between them). 360 nodes
-#: meet the bound for the mirror-like films of the RGL database
+#: θh nodes are 0.15-0.2° apart at 0.5°: a lobe under a degree falls between them). A GGX
+#: α = 0.01 film needs 180
 #: (tests/test_convert.py::test_default_grid_refines_theta_h_for_a_narrow_lobe).
 REFINED_THETA_H = (180, 360)
 #: Rotations about the normal averaged when an anisotropic source without a uniform φh axis is

@@ -138,3 +138,23 @@ def test_checks_say_what_the_samples_cover_and_pass_nothing_over_no_pairs():
     bilateral, albedo = report.get("bilateral"), report.get("albedo")
     assert bilateral.status == "skip" and "no random pair has data on both sides" in bilateral.detail
     assert albedo.status == "warn" and albedo.data["coverage_min"] < 0.3
+
+
+def test_extrapolation_reported_for_a_bsdf_is_the_written_files(tmp_path):
+    """An RGL file of a scattered table: the writer builds two candidate warps and evaluates
+    the source again to choose (formats/rgl-bsdf.md, step 3); the extrapolation convert reports
+    counts the nodes of the file written only, as when its warp is asked for."""
+    import json
+
+    from brdftab.convert import convert
+
+    brdftab.save(random_table(600, 2), tmp_path / "s.nc")
+    got, warp = {}, "auto"
+    for _ in range(2):  # auto, then the warp it chose, asked for
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            result = convert(tmp_path / "s.nc", tmp_path / f"s-{warp}.bsdf", options={"warp": warp},
+                             allow_invalid=True, progress=False)
+        got[warp] = result.extrapolated
+        warp = json.loads(bytes(brdftab.open(tmp_path / f"s-{warp}.bsdf").fields["provenance"]).decode())["warp"]
+    assert got["auto"] == got[warp] and got["auto"]["outside"] > 0

@@ -53,8 +53,9 @@ PARAMS = (
           "isotropy).", default=None),
     Param("ndf", "choice", "auto (the model's own D, else from back-scattering) | model | backscatter.",
           default="auto", choices=NDF_CHOICES),
-    Param("warp", "choice", "A D from the back-scattering (tables, Lambert), isotropic files: auto (the warp "
-          "that reproduces the source better at check pairs) | level (broad reflectance) | lobe (lobes).",
+    Param("warp", "choice", "A D from the back-scattering (tables, Lambert): auto (the warp that reproduces the "
+          "source better at check pairs) | level (broad reflectance; anisotropic files: the continuous spread) | "
+          "lobe (lobes). Not used for a model's own D.",
           default="auto", choices=WARP_CHOICES),
     Param("wavelengths_nm", "floats", "Spectral models: wavelengths of the 'spectra' field in nm (default: the "
           "model's own).", units="nm", default=None, minimum=0.0, exclusive_minimum=True),

@@ -8,8 +8,10 @@ from the back-scattering, blended between the θi nodes as the readers blend the
 :func:`_sigma_between_incidences`); the ``vndf`` field, the warp that places the N × N
 samples, mixes row by row the visible normals of D with an even spread over the half vectors
 whose ωo is above the horizon (share :data:`WARP_UNIFORM`; for a D from the back-scattering
-:func:`_broad_spread`, and in isotropic files :func:`_level_warp` up to
-:data:`LEVEL_MAX_THETA_I`, with one more θi slice: :func:`_level_incidences`); the stored values are f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with
+either :func:`_broad_spread`, and in isotropic files :func:`_level_warp` up to
+:data:`LEVEL_MAX_THETA_I`, with one more θi slice: :func:`_level_incidences`, or the lobe
+warp of :func:`_vndf_table`, whichever reproduces the source better: option ``warp``,
+:func:`_closest`); the stored values are f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with
 σ̂, D̂ the interpolants the readers evaluate, so that every reader returns f·cosθo exactly at
 the nodes; ``luminance`` is the luminance of f·cosθo per unit area of the unit square, so that
 Mitsuba samples ωo in proportion to f·cosθo.
@@ -369,6 +371,8 @@ def _sigma_between_incidences(sigma32, th_i):
     positive ``sigma`` is valid: the readers use it only to divide the stored values, which the
     writer made with it. (Without both, the albedo of a Lambertian's file was 0.28 % low at
     θi = 20°: tests/test_rgl.py::test_lambert_file_albedo_up_to_grazing_incidence.)"""
+    if th_i.size < 2:  # one θi node: nothing is blended
+        return sigma32
     nx = sigma32.shape[1]
     theta = u2theta(np.linspace(0.0, 1.0, nx))
     true = sigma32[0].astype(np.float64)
@@ -500,8 +504,19 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
     else:
         first = "smooth" if anisotropic else "level"
         kinds = (first, "lobe") if opts["warp"] == "auto" else ("lobe" if opts["warp"] == "lobe" else first,)
-    candidates = [_fields(brdf, opts, lam, ndf, source, anisotropic, k) for k in kinds]
+    # a scattered table counts its extrapolated queries (reported by convert): keep the counts
+    # of the candidate written, not of every candidate and of the choice
+    counts = getattr(brdf, "extrapolation", None)
+    before = list(counts) if isinstance(counts, list) else None
+    candidates, tallies = [], []
+    for k in kinds:
+        if before is not None:
+            counts[:] = before
+        candidates.append(_fields(brdf, opts, lam, ndf, source, anisotropic, k))
+        tallies.append(list(counts) if before is not None else None)
     fields = candidates[0] if len(candidates) == 1 else _closest(brdf, lam, candidates)
+    if before is not None:
+        counts[:] = tallies[next(i for i, c in enumerate(candidates) if c is fields)]
     return RGLPayload(fields)
 
 
