@@ -290,28 +290,12 @@ def check_points(grid, n: int = CHECK_POINTS, seed: int = 0):
     whose slopes are normal with a standard deviation log-uniform in [0.01, 0.5]), so that
     narrow lobes are judged too."""
     from .checks.tabulation import cell_centres
+    from .geometry import mirror_biased_pairs
     from .grids import Grid
 
     if isinstance(grid, Grid):
         return cell_centres(grid, n, seed)
-    rng = np.random.default_rng(seed)
-
-    def hemisphere():
-        z = rng.random(n) * (1 - 2e-6) + 1e-6
-        phi = rng.random(n) * 2 * np.pi
-        r = np.sqrt(1 - z * z)
-        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-    wi, wo = hemisphere(), hemisphere()
-    half = n // 2
-    spread = np.exp(rng.uniform(np.log(0.01), np.log(0.5), half))
-    slopes = rng.normal(size=(half, 2)) * spread[:, None]
-    m = np.concatenate([-slopes, np.ones((half, 1))], axis=1)
-    m /= np.linalg.norm(m, axis=1, keepdims=True)
-    near = 2.0 * np.sum(wi[:half] * m, axis=1, keepdims=True) * m - wi[:half]
-    keep = near[:, 2] > 1e-6
-    wo[:half][keep] = near[keep]
-    return wi, wo
+    return mirror_biased_pairs(n, np.random.default_rng(seed))
 
 
 def difference(source, written, n: int = CHECK_POINTS, seed: int = 0):

@@ -43,6 +43,7 @@ __all__ = [
     "io_to_hd",
     "hd_to_io",
     "as_directions",
+    "mirror_biased_pairs",
 ]
 
 #: Below this value of sin θh the half vector is taken to be the normal and φh := 0.
@@ -123,6 +124,30 @@ def reflect(w, n):
     w = np.asarray(w, float)
     n = np.asarray(n, float)
     return 2.0 * np.sum(w * n, axis=-1, keepdims=True) * n - w
+
+
+def mirror_biased_pairs(n, rng, z_low=1e-6, z_span=1.0 - 2e-6):
+    """``n`` random direction pairs ``(wi, wo)`` for judging a BRDF's representation: wi uniform
+    in solid angle with cosθ in [``z_low``, ``z_low + z_span``]; wo the same for half the pairs, and for
+    the other half near the mirror direction of wi, reflected about a normal whose slopes are
+    normal with a standard deviation log-uniform in [0.01, 0.5] (kept where its cosθ stays above
+    ``z_low``), so that narrow lobes are judged too. ``rng``: a numpy Generator."""
+    def hemisphere():
+        z = rng.random(n) * z_span + z_low
+        phi = rng.random(n) * 2 * np.pi
+        r = np.sqrt(1 - z * z)
+        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+    wi, wo = hemisphere(), hemisphere()
+    half = n // 2
+    spread = np.exp(rng.uniform(np.log(0.01), np.log(0.5), half))
+    slopes = rng.normal(size=(half, 2)) * spread[:, None]
+    m = np.concatenate([-slopes, np.ones((half, 1))], axis=1)
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    near = reflect(wi[:half], m)
+    keep = near[:, 2] > z_low
+    wo[:half][keep] = near[keep]
+    return wi, wo
 
 
 def as_directions(*dirs):

@@ -154,3 +154,19 @@ def test_huge_and_tiny_finite_directions_keep_their_direction(scale):
     assert expected[0] > 0.1
     assert np.allclose(ggx.eval(v, wo), expected, rtol=1e-14, atol=0)
     assert np.allclose(ggx.eval(wo, v), ggx.eval(wo, [1.0, 0.0, 1.0]), rtol=1e-14, atol=0)
+
+
+def test_mirror_biased_pairs_cover_the_range_and_the_mirror_direction():
+    """Unit pairs with cosθ in the range asked for; half of the wo within a few degrees of the
+    mirror direction (slopes up to 0.5 standard deviations), the other half spread evenly."""
+    from brdftab.geometry import mirror_biased_pairs, reflect
+
+    c80 = np.cos(np.radians(80.0))
+    wi, wo = mirror_biased_pairs(4000, np.random.default_rng(1), z_low=c80, z_span=1.0 - c80)
+    assert np.allclose(np.linalg.norm(wi, axis=1), 1) and np.allclose(np.linalg.norm(wo, axis=1), 1)
+    assert wi[:, 2].min() >= c80 and wo[:, 2].min() >= c80 and wi[:, 2].max() <= 1.0
+    mirror = reflect(wi, np.array([0.0, 0.0, 1.0]))
+    off = np.degrees(np.arccos(np.clip(np.sum(wo * mirror, axis=1), -1, 1)))
+    assert np.median(off[:2000]) < 15 < np.median(off[2000:])
+    # cosθ of wi uniform over its range (solid angle): mean in the middle of the range
+    assert np.mean(wi[:, 2]) == pytest.approx((1 + c80) / 2, abs=0.01)

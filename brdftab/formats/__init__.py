@@ -216,6 +216,14 @@ def read_head(path, n: int = HEAD_BYTES):
         raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
 
 
+def read_bytes(path) -> bytes:
+    """The whole of the file ``path``; an unreadable file is a FormatError (one line)."""
+    try:
+        return Path(path).read_bytes()
+    except OSError as exc:
+        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+
+
 def format_for(path=None, format: str | None = None) -> FileFormat:
     """The format named ``format``, else the one registered for the extension of ``path``."""
     if format is not None:

@@ -620,24 +620,10 @@ def _closest(brdf, lam, candidates) -> dict:
     percentile / 10 %) of the relative error of f where f is above 1e-3 of its 99th
     percentile, the targets of a table's round trip (formats/rgl-bsdf.md, "Tables"). Seeded:
     the same source gives the same file."""
-    rng = np.random.default_rng(0)
-    n = WARP_CHECK_PAIRS
+    from ..geometry import mirror_biased_pairs
+
     c80 = np.cos(np.radians(80.0))
-
-    def hemisphere(k):
-        z = rng.uniform(c80, 1.0, k)
-        phi = rng.uniform(0.0, 2.0 * np.pi, k)
-        r = np.sqrt(1.0 - z * z)
-        return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
-
-    wi, wo = hemisphere(n), hemisphere(n)
-    half = n // 2
-    slopes = rng.normal(size=(half, 2)) * np.exp(rng.uniform(np.log(0.01), np.log(0.5), half))[:, None]
-    m = np.concatenate([-slopes, np.ones((half, 1))], axis=1)
-    m /= np.linalg.norm(m, axis=1, keepdims=True)
-    near = 2.0 * np.sum(wi[:half] * m, axis=1, keepdims=True) * m - wi[:half]
-    keep = near[:, 2] >= c80
-    wo[:half][keep] = near[keep]
+    wi, wo = mirror_biased_pairs(WARP_CHECK_PAIRS, np.random.default_rng(0), z_low=c80, z_span=1.0 - c80)
     ref = np.asarray(brdf.eval(wi, wo, lam), float)
     ok = np.isfinite(ref).all(axis=-1)
     ref = ref[ok]

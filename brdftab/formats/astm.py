@@ -42,7 +42,7 @@ import numpy as np
 from .. import __version__
 from ..channels import Layout
 from ..errors import BrdftabWarning, FormatError
-from . import FileFormat, register
+from . import FileFormat, read_bytes, register
 
 __all__ = ["read_astm", "write_astm", "parse_channels", "scattered_target", "prepare_scattered", "QUANTITIES",
            "HEADER_ATTR"]
@@ -95,9 +95,7 @@ def read_astm(path):
     """Read an ASTM E1392 (Cornell dialect) file into a scattered :class:`~brdftab.table.Table`."""
     path = Path(path)
     try:
-        text = path.read_bytes().decode("utf-8")
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+        text = read_bytes(path).decode("utf-8")
     except UnicodeDecodeError:
         raise FormatError(f"{path}: not an ASTM text file (not UTF-8 text)") from None
     lines = text.splitlines()

@@ -38,7 +38,7 @@ import numpy as np
 from .. import __version__
 from ..channels import Layout
 from ..errors import FormatError
-from . import FileFormat, register
+from . import FileFormat, read_bytes, register
 from .astm import _number, _table, native_grid, prepare_scattered
 
 __all__ = ["read_csv", "write_csv", "QUANTITY_COLUMNS"]
@@ -63,9 +63,7 @@ def read_csv(path):
     """Read a CSV of scattered samples into a scattered :class:`~brdftab.table.Table`."""
     path = Path(path)
     try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+        text = read_bytes(path).decode("utf-8-sig")
     except UnicodeDecodeError:
         raise FormatError(f"{path}: not a CSV text file (not UTF-8 text)") from None
     lines = text.splitlines()

@@ -43,7 +43,7 @@ import numpy as np
 from ..colorimetry import PARAMS as COLOUR_PARAMS
 from ..errors import BrdftabWarning, FormatError, ParameterError
 from ..params import Param
-from . import FileFormat, register
+from . import FileFormat, read_bytes, register
 from .zemax import (CLASSIFY_BYTES, DIGITS, PRECISION, _deg_list, _text, _Tokens, classify, compare_tis,
                     monochrome_or_xyz, rounded, text_bsdf, tis_albedo)
 
@@ -273,10 +273,7 @@ def read_lighttools(path):
     file has no front ones; other blocks are skipped with one warning and a note in
     ``lighttools_skipped``."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+    raw = read_bytes(path)
     text = _text(raw)
     if text is None or classify(raw[:CLASSIFY_BYTES])[0] != "lighttools":
         raise FormatError(f"{path}: not a LightTools text .bsdf file" + (" (binary bytes in it)" if text is None else

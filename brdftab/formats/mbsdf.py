@@ -39,7 +39,7 @@ from ..errors import BrdftabWarning, FormatError, ParameterError
 from ..grids import SphericalGrid
 from ..grids.axis import HALF_PI, uniform_values
 from ..params import Param
-from . import FileFormat, averaged, cast_samples, register
+from . import FileFormat, averaged, cast_samples, read_bytes, register
 from .merl import _phi_h_samples
 
 __all__ = ["read_mbsdf", "write_mbsdf", "prepare_mbsdf", "mbsdf_grid", "MAGIC", "REFLECTION", "LEGACY",
@@ -128,10 +128,7 @@ def read_mbsdf(path):
     from ..table import Table, make_table
 
     path = Path(path)
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+    data = read_bytes(path)
     if not data.startswith(MAGIC):
         if data.startswith(MAGIC[:-1] + b"\r\n"):
             raise FormatError(f"{path}: .mbsdf lines end in CRLF; the format (and the MDL SDK) needs LF line ends")

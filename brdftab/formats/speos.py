@@ -62,7 +62,7 @@ import numpy as np
 from .. import __version__
 from ..errors import BrdftabWarning, FormatError, ParameterError
 from ..params import Param
-from . import FileFormat, register
+from . import FileFormat, read_bytes, register
 
 __all__ = ["read_anisotropicbsdf", "read_brdf", "write_anisotropicbsdf", "write_brdf", "node_albedo",
            "sniff_anisotropic", "sniff_brdf", "DIGITS", "PRECISION"]
@@ -309,10 +309,7 @@ def parse_brdf(path, text: str) -> dict:
 
 
 def _read_text(path) -> str:
-    try:
-        raw = Path(path).read_bytes()
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+    raw = read_bytes(path)
     if b"\0" in raw:
         raise FormatError(f"{path}: a Speos file with binary bytes in it (a binary variant, or damaged); brdftab "
                           "reads the text variant")

@@ -45,7 +45,7 @@ import numpy as np
 from ..colorimetry import PARAMS as COLOUR_PARAMS
 from ..errors import BrdftabWarning, FormatError, ParameterError
 from ..params import Param
-from . import FileFormat, register
+from . import FileFormat, read_bytes, register
 
 __all__ = ["sniff", "classify", "read_zemax", "write_zemax", "prepare_zemax", "parse_zemax", "tis_albedo",
            "DEFAULT_RADIALS_DEG", "TIS_TOLERANCE"]
@@ -307,10 +307,7 @@ def read_zemax(path):
     :class:`~brdftab.grids.SpecularPolarGrid`; a LightTools file goes to its own reader. A text
     file that is neither is read by the format its extension names (which says what is wrong)."""
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise FormatError(f"{path}: cannot read ({exc.strerror})") from None
+    raw = read_bytes(path)
     dialect, header = classify(raw[:CLASSIFY_BYTES])
     if dialect == "lighttools":
         from .lighttools import read_lighttools
