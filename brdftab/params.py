@@ -20,7 +20,7 @@ import numpy as np
 from .channels import ChannelValue
 from .errors import ParameterError
 
-__all__ = ["Param", "Kind", "KINDS", "REQUIRED", "parse_params", "register_kind", "suggest", "unknown",
+__all__ = ["Param", "Kind", "KINDS", "REQUIRED", "parse_params", "register_kind", "suggest", "unknown", "deg_list",
            "as_float"]
 
 
@@ -115,6 +115,20 @@ def _bad(p, value, why=""):
         if x is not None:
             value = float(np.degrees(x))  # angles reach Params in radians; users wrote degrees
     return ParameterError(p.name, f"expected {p.expected()}, got {_show(value)}{why}")
+
+
+def deg_list(name, value, lo, hi):
+    """An option's angles in degrees (a number or a list), strictly increasing within
+    [``lo``, ``hi``], as a float array (None when not given); else a ParameterError naming
+    ``name``."""
+    if value is None:
+        return None
+    vals = np.asarray(value if isinstance(value, (list, tuple, np.ndarray)) else [value], float)
+    if vals.size == 0 or not np.all(np.isfinite(vals)) or vals.min() < lo or vals.max() > hi:
+        raise ParameterError(name, f"expected angles in [{lo:g}, {hi:g}] degrees, got {value!r}")
+    if np.any(np.diff(vals) <= 0):
+        raise ParameterError(name, "angles must increase strictly")
+    return vals
 
 
 def as_float(value) -> float | None:

@@ -42,9 +42,9 @@ import numpy as np
 
 from ..colorimetry import PARAMS as COLOUR_PARAMS
 from ..errors import BrdftabWarning, FormatError, ParameterError
-from ..params import Param
+from ..params import Param, deg_list
 from . import FileFormat, read_bytes, register
-from .zemax import (CLASSIFY_BYTES, DIGITS, PRECISION, _deg_list, _text, _Tokens, classify, compare_tis,
+from .zemax import (CLASSIFY_BYTES, DIGITS, PRECISION, _text, _Tokens, classify, compare_tis,
                     monochrome_or_xyz, rounded, text_bsdf, tis_albedo)
 
 __all__ = ["sniff", "parse_lighttools", "read_lighttools", "write_lighttools", "prepare_lighttools",
@@ -360,10 +360,10 @@ def check_options(symmetry="auto", spectral_content="auto", incidences_deg=None,
         raise ParameterError("symmetry", f"expected 'auto', 'Asymmetric' or 'PlaneSymmetrical', got {symmetry!r}")
     if spectral_content not in _CONTENT_CHOICES:
         raise ParameterError("spectral_content", f"expected 'auto', 'Monochrome' or 'XYZ', got {spectral_content!r}")
-    _deg_list("incidences_deg", incidences_deg, 0, 90)
-    poi = _deg_list("poi_deg", poi_deg, -360, 360)
-    az = _deg_list("azimuths_deg", azimuths_deg, 0, 360)
-    _deg_list("radials_deg", radials_deg, 0, 90)
+    deg_list("incidences_deg", incidences_deg, 0, 90)
+    poi = deg_list("poi_deg", poi_deg, -360, 360)
+    az = deg_list("azimuths_deg", azimuths_deg, 0, 360)
+    deg_list("radials_deg", radials_deg, 0, 90)
     if symmetry == "PlaneSymmetrical":
         if poi is not None and poi.size != 1:
             raise ParameterError("poi_deg", "PlaneSymmetrical describes an isotropic surface: one POI")
@@ -379,10 +379,10 @@ def _grid(options, anisotropic):
     from ..grids import SphericalGrid
 
     plane = options.get("symmetry", "auto") == "PlaneSymmetrical"
-    inc = _deg_list("incidences_deg", options.get("incidences_deg"), 0, 90)
-    poi = _deg_list("poi_deg", options.get("poi_deg"), -360, 360)
-    az = _deg_list("azimuths_deg", options.get("azimuths_deg"), 0, 360)
-    rad = _deg_list("radials_deg", options.get("radials_deg"), 0, 90)
+    inc = deg_list("incidences_deg", options.get("incidences_deg"), 0, 90)
+    poi = deg_list("poi_deg", options.get("poi_deg"), -360, 360)
+    az = deg_list("azimuths_deg", options.get("azimuths_deg"), 0, 360)
+    rad = deg_list("radials_deg", options.get("radials_deg"), 0, 90)
     inc = np.array(DEFAULT_INCIDENCES_DEG) if inc is None else inc
     if poi is None:
         poi = np.arange(0.0, 360.0, 30.0) if anisotropic and not plane else np.zeros(1)

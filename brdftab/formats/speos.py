@@ -61,7 +61,7 @@ import numpy as np
 
 from .. import __version__
 from ..errors import BrdftabWarning, FormatError, ParameterError
-from ..params import Param
+from ..params import Param, deg_list
 from . import FileFormat, read_bytes, register
 
 __all__ = ["read_anisotropicbsdf", "read_brdf", "write_anisotropicbsdf", "write_brdf", "node_albedo",
@@ -473,24 +473,13 @@ def read_brdf(path):
 # Writing
 
 
-def _deg_list(name, value, lo, hi):
-    if value is None:
-        return None
-    vals = np.asarray(value if isinstance(value, (list, tuple, np.ndarray)) else [value], float)
-    if vals.size == 0 or not np.all(np.isfinite(vals)) or vals.min() < lo or vals.max() > hi:
-        raise ParameterError(name, f"expected angles in [{lo:g}, {hi:g}] degrees, got {value!r}")
-    if np.any(np.diff(vals) <= 0):
-        raise ParameterError(name, "angles must increase strictly")
-    return vals
-
-
 def check_options(incidences_deg=None, anisotropy_angles_deg=None, thetas_deg=None, phis_deg=None,
                   reference_incidence_deg=None, spectrum_wavelengths_nm=None):
     """The writer's options checked (one :class:`ParameterError` naming the option)."""
-    _deg_list("incidences_deg", incidences_deg, 0, 90)
-    _deg_list("anisotropy_angles_deg", anisotropy_angles_deg, 0, 360)
-    _deg_list("thetas_deg", thetas_deg, 0, 90)
-    _deg_list("phis_deg", phis_deg, 0, 360)
+    deg_list("incidences_deg", incidences_deg, 0, 90)
+    deg_list("anisotropy_angles_deg", anisotropy_angles_deg, 0, 360)
+    deg_list("thetas_deg", thetas_deg, 0, 90)
+    deg_list("phis_deg", phis_deg, 0, 360)
     if reference_incidence_deg is not None and not 0 <= float(reference_incidence_deg) <= 90:
         raise ParameterError("reference_incidence_deg", f"expected an angle in [0, 90] degrees, got "
                              f"{reference_incidence_deg!r}")
@@ -503,10 +492,10 @@ def check_options(incidences_deg=None, anisotropy_angles_deg=None, thetas_deg=No
 def _grid(options, anisotropic, brdf_file):
     from ..grids import SpeosGrid
 
-    inc = _deg_list("incidences_deg", options.get("incidences_deg"), 0, 90)
-    rot = None if brdf_file else _deg_list("anisotropy_angles_deg", options.get("anisotropy_angles_deg"), 0, 360)
-    th = _deg_list("thetas_deg", options.get("thetas_deg"), 0, 90)
-    ph = _deg_list("phis_deg", options.get("phis_deg"), 0, 360)
+    inc = deg_list("incidences_deg", options.get("incidences_deg"), 0, 90)
+    rot = None if brdf_file else deg_list("anisotropy_angles_deg", options.get("anisotropy_angles_deg"), 0, 360)
+    th = deg_list("thetas_deg", options.get("thetas_deg"), 0, 90)
+    ph = deg_list("phis_deg", options.get("phis_deg"), 0, 360)
     inc = np.array(DEFAULT_INCIDENCES_DEG) if inc is None else inc
     if rot is None:
         rot = np.arange(0.0, 360.0, 30.0) if anisotropic and not brdf_file else np.zeros(1)

@@ -44,7 +44,7 @@ import numpy as np
 
 from ..colorimetry import PARAMS as COLOUR_PARAMS
 from ..errors import BrdftabWarning, FormatError, ParameterError
-from ..params import Param
+from ..params import Param, deg_list
 from . import FileFormat, read_bytes, register
 
 __all__ = ["sniff", "classify", "read_zemax", "write_zemax", "prepare_zemax", "parse_zemax", "tis_albedo",
@@ -424,17 +424,6 @@ _SYMMETRY_CHOICES = ("Asymmetrical", "PlaneSymmetrical")
 _CONTENT_CHOICES = ("auto", "Monochrome", "XYZ")
 
 
-def _deg_list(name, value, lo, hi):
-    if value is None:
-        return None
-    vals = np.asarray(value if isinstance(value, (list, tuple, np.ndarray)) else [value], float)
-    if vals.size == 0 or not np.all(np.isfinite(vals)) or vals.min() < lo or vals.max() > hi:
-        raise ParameterError(name, f"expected angles in [{lo:g}, {hi:g}] degrees, got {value!r}")
-    if np.any(np.diff(vals) <= 0):
-        raise ParameterError(name, "angles must increase strictly")
-    return vals
-
-
 def check_options(symmetry="Asymmetrical", spectral_content="auto", incidences_deg=None, sample_rotations_deg=None,
                   azimuths_deg=None, radials_deg=None, illuminant="D65", observer="cie1931-2", wavelengths_nm=None):
     """The writer's options checked (one :class:`ParameterError` naming the option)."""
@@ -442,10 +431,10 @@ def check_options(symmetry="Asymmetrical", spectral_content="auto", incidences_d
         raise ParameterError("symmetry", f"expected 'Asymmetrical' or 'PlaneSymmetrical', got {symmetry!r}")
     if spectral_content not in _CONTENT_CHOICES:
         raise ParameterError("spectral_content", f"expected 'auto', 'Monochrome' or 'XYZ', got {spectral_content!r}")
-    _deg_list("incidences_deg", incidences_deg, 0, 90)
-    _deg_list("sample_rotations_deg", sample_rotations_deg, -360, 360)
-    _deg_list("azimuths_deg", azimuths_deg, 0, 180 if symmetry == "PlaneSymmetrical" else 360)
-    _deg_list("radials_deg", radials_deg, 0, 180)
+    deg_list("incidences_deg", incidences_deg, 0, 90)
+    deg_list("sample_rotations_deg", sample_rotations_deg, -360, 360)
+    deg_list("azimuths_deg", azimuths_deg, 0, 180 if symmetry == "PlaneSymmetrical" else 360)
+    deg_list("radials_deg", radials_deg, 0, 180)
     if (illuminant, observer) != ("D65", "cie1931-2"):
         from ..colorimetry import from_options
 
@@ -467,10 +456,10 @@ def _grid(options, anisotropic):
     from ..grids import SpecularPolarGrid
 
     plane = options.get("symmetry", "Asymmetrical") == "PlaneSymmetrical"
-    inc = _deg_list("incidences_deg", options.get("incidences_deg"), 0, 90)
-    rot = _deg_list("sample_rotations_deg", options.get("sample_rotations_deg"), -360, 360)
-    az = _deg_list("azimuths_deg", options.get("azimuths_deg"), 0, 180 if plane else 360)
-    rad = _deg_list("radials_deg", options.get("radials_deg"), 0, 180)
+    inc = deg_list("incidences_deg", options.get("incidences_deg"), 0, 90)
+    rot = deg_list("sample_rotations_deg", options.get("sample_rotations_deg"), -360, 360)
+    az = deg_list("azimuths_deg", options.get("azimuths_deg"), 0, 180 if plane else 360)
+    rad = deg_list("radials_deg", options.get("radials_deg"), 0, 180)
     if inc is None:
         inc = np.array(DEFAULT_INCIDENCES_DEG)
     if rot is None:
