@@ -126,19 +126,21 @@ def reflect(w, n):
     return 2.0 * np.sum(w * n, axis=-1, keepdims=True) * n - w
 
 
-def mirror_biased_pairs(n, rng, z_low=1e-6, z_span=1.0 - 2e-6):
+def mirror_biased_pairs(n, rng, z_low=1e-6, z_span=1.0 - 2e-6, wi_z=None):
     """``n`` random direction pairs ``(wi, wo)`` for judging a BRDF's representation: wi uniform
-    in solid angle with cosθ in [``z_low``, ``z_low + z_span``]; wo the same for half the pairs, and for
-    the other half near the mirror direction of wi, reflected about a normal whose slopes are
-    normal with a standard deviation log-uniform in [0.01, 0.5] (kept where its cosθ stays above
-    ``z_low``), so that narrow lobes are judged too. ``rng``: a numpy Generator."""
-    def hemisphere():
-        z = rng.random(n) * z_span + z_low
+    in solid angle with cosθ in [``z_low``, ``z_low + z_span``] (or in ``wi_z`` = (low, high));
+    wo the same for half the pairs, and for the other half near the mirror direction of wi,
+    reflected about a normal whose slopes are normal with a standard deviation log-uniform in
+    [0.01, 0.5] (kept where its cosθ stays above ``z_low``), so that narrow lobes are judged
+    too. ``rng``: a numpy Generator."""
+    def hemisphere(low, span):
+        z = rng.random(n) * span + low
         phi = rng.random(n) * 2 * np.pi
         r = np.sqrt(1 - z * z)
         return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
-    wi, wo = hemisphere(), hemisphere()
+    wi = hemisphere(z_low, z_span) if wi_z is None else hemisphere(wi_z[0], wi_z[1] - wi_z[0])
+    wo = hemisphere(z_low, z_span)
     half = n // 2
     spread = np.exp(rng.uniform(np.log(0.01), np.log(0.5), half))
     slopes = rng.normal(size=(half, 2)) * spread[:, None]

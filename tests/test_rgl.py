@@ -881,12 +881,14 @@ def test_f_is_held_near_the_horizon(files):
     """The quotient (f·cosθo)/cosθo grows without bound at grazing ωo; the reader holds f beyond
     θ_hold = 90° − 180°/resolution (formats/rgl-bsdf.md, Guarantees, "f near the horizon"): a
     Lambertian's file then reads within 20 % of its f at every θo, θi <= 80° and azimuth
-    (the file's own error at θ_hold), where the quotient is right at 89° but about 2.8× too
-    large at 89.9° (medians)."""
+    (the file's own error at θ_hold), where the quotient is right at 89° but about 1.8× too
+    large at 89.9° and 10× at 89.99° (medians; the default 49 × 49 samples of a D from the
+    back-scattering)."""
     path = files / "lambert-hold.bsdf"
     brdftab.save(create("lambert", albedo=0.99), path)
     ours = brdftab.open(path)
-    assert np.degrees(ours.theta_hold) == pytest.approx(90 - 180 / 48)
+    assert ours.resolution == 49  # the default for a D from the back-scattering
+    assert np.degrees(ours.theta_hold) == pytest.approx(90 - 180 / 49)
     f0 = 0.99 / np.pi
     th = np.radians(np.array([85.0, 88.0, 89.0, 89.5, 89.9, 89.99]))
     held, quotient = [], []
@@ -901,7 +903,8 @@ def test_f_is_held_near_the_horizon(files):
     print(f"held f / (rho/pi): [{held.min():.3f}, {held.max():.3f}]; quotient (median) at 89°, 89.9°: "
           f"{quotient[2]:.2f}, {quotient[4]:.2f}")
     assert np.all(np.abs(held - 1) < 0.2), (held.min(), held.max())
-    assert 0.97 < quotient[2] < 1.05 and 2.4 < quotient[4] < 3.3, quotient  # the blow-up the hold removes
+    # the blow-up the hold removes
+    assert 0.97 < quotient[2] < 1.05 and 1.5 < quotient[4] < 2.2 and quotient[5] > 5.0, quotient
 
 
 @pytest.mark.parametrize("theta_i", [30.0, 70.0, 89.0])
@@ -974,9 +977,14 @@ def test_lambert_file_albedo_up_to_grazing_incidence(files):
 # tables written to .bsdf: the file follows the table's own values
 
 
+def _provenance(path):
+    """The provenance brdftab's writer recorded in the file at ``path``."""
+    return json.loads(bytes(brdftab.open(path).fields["provenance"]).decode())
+
+
 def _warp(path):
     """The warp brdftab's writer chose for the file at ``path`` (its provenance)."""
-    return json.loads(bytes(brdftab.open(path).fields["provenance"]).decode())["warp"]
+    return _provenance(path)["warp"]
 
 
 def _table(model, grid, path):
@@ -1014,10 +1022,11 @@ def test_lambert_table_to_bsdf_up_to_grazing(files):
     worst = dict(zip(tos, err.tolist()))
     print("Lambert table, Mitsuba, worst |f/(rho/pi) - 1| by θo: "
           + ", ".join(f"{k:g}°: {100 * v:.2f} %" for k, v in worst.items()))
-    assert all(v < (0.06 if k > 80.0 else 0.025) for k, v in worst.items()), worst
-    # the default 17 θi nodes and the twin of the last one up to 63.5° (step 3), 1e-6 rad above it
+    assert all(v < (0.06 if k > 80.0 else 0.02) for k, v in worst.items()), worst
+    # the 21 θi nodes of a D from the back-scattering and the twin of the last one up to 63.5°
+    # (step 3), 1e-6 rad above it
     th = np.degrees(brdftab.open(path).theta_i.astype(float))
-    assert th.size == 18 and np.count_nonzero(np.diff(th) < 1e-3) == 1
+    assert th.size == 22 and np.count_nonzero(np.diff(th) < 1e-3) == 1
     assert np.diff(th).min() == pytest.approx(np.degrees(1e-6), rel=0.2) and th[np.argmin(np.diff(th))] <= 63.5
 
 
@@ -1041,7 +1050,7 @@ def test_shipped_tables_convert_to_bsdf(files, spec, p95):
     table = _table(model, grid_from_config(cfg["grid"]), files / f"{spec}.nc")
     out = files / f"{spec}.bsdf"
     convert(files / f"{spec}.nc", out, overwrite=True, progress=False)  # raises when refused
-    assert _warp(out) == "lobe"  # the warp that reproduces these lobes better (formats/rgl-bsdf.md, step 3)
+    assert _warp(out) in ("level", "lobe")  # the warp that reproduces the table better (formats/rgl-bsdf.md, step 3)
     wi, wo = direction_pairs(7, 0.1, 0.1, 600)
     keep = (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
     wi, wo = wi[keep], wo[keep]
@@ -1385,11 +1394,12 @@ def test_a_warp_fixed_at_one_incidence_is_the_same_warp(files, anisotropic):
 
 def test_auto_warp_writes_the_file_closer_to_the_table(files):
     """A table's D comes from its back-scattering; its file gets the level warp or the lobe warp
-    (option ``warp``), ``auto`` the one whose reading reproduces the table better
-    (formats/rgl-bsdf.md, step 3): the Lambertian table gets the level warp, a glossy table
-    (GGX α = 0.1 over a Lambertian) the lobe warp, and at independent pairs the file ``auto``
-    writes is the closer of the two (the level warp's band of cosθo takes half of every row
-    from the lobe)."""
+    (option ``warp``), ``auto`` the one whose reading reproduces the table better, with node
+    samples or least-squares values (option ``values``; formats/rgl-bsdf.md, steps 3 and 4):
+    judged at independent pairs by what ``auto`` minimizes, max(median / 1 %, p95 / 10 %) of
+    the relative error of f, the file ``auto`` writes is within 5 % of the better of the level
+    and lobe files with node samples or better. The Lambertian table gets the level warp and
+    its node samples (the fit is tried only where node samples miss: FIT_WHEN_SCORE)."""
     from brdftab.grids.rusinkiewicz import RusinkiewiczGrid
 
     glossy = create("sum", terms=[create("lambert", albedo=0.1),
@@ -1397,20 +1407,24 @@ def test_auto_warp_writes_the_file_closer_to_the_table(files):
     wi, wo = direction_pairs(23, 0.1, 0.1, 2000)
     keep = (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
     wi, wo = wi[keep], wo[keep]
-    for name, model, want in (("lambert", create("lambert", albedo=0.99), "level"), ("glossy", glossy, "lobe")):
+    for name, model in (("lambert", create("lambert", albedo=0.99)), ("glossy", glossy)):
         table = _table(model, RusinkiewiczGrid(30, 30, 60), files / f"warp-{name}.nc")
         ref = np.asarray(table.eval(wi, wo), float)
-        err = {}
-        for warp in ("auto", "level", "lobe"):
+        big = ref > 1e-3 * np.percentile(ref, 99)
+        score = {}
+        for warp, values in (("auto", "auto"), ("level", "nodes"), ("lobe", "nodes")):
             path = files / f"warp-{name}-{warp}.bsdf"
-            brdftab.save(table, path, warp=warp)
-            read = brdftab.open(path)
-            err[warp] = float(np.median(np.abs(np.asarray(read.eval(wi, wo), float) / ref - 1)))
+            brdftab.save(table, path, warp=warp, values=values)
+            got = np.asarray(brdftab.open(path).eval(wi, wo), float)[:, :ref.shape[1]]  # grey: R of R, G, B
+            rel = np.abs(got[big] / ref[big] - 1)
+            score[warp] = max(np.median(rel) / 0.01, np.percentile(rel, 95) / 0.1)
             if warp == "auto":
-                chosen = _warp(path)
-        print(f"{name}: auto chose {chosen}; median error level {100 * err['level']:.3f} %, "
-              f"lobe {100 * err['lobe']:.3f} %")
-        assert chosen == want and err["auto"] == err[want] and err[want] < err["level" if want == "lobe" else "lobe"]
+                chosen = (_warp(path), _provenance(path)["values"])
+        print(f"{name}: auto chose {chosen}; score auto {score['auto']:.3f}, level {score['level']:.3f}, "
+              f"lobe {score['lobe']:.3f}")
+        assert score["auto"] <= 1.05 * min(score["level"], score["lobe"]), (chosen, score)
+        if name == "lambert":
+            assert chosen == ("level", "nodes") and score["level"] < score["lobe"]
 
 
 def test_one_incidence_table_file_has_finite_sigma(files):
@@ -1427,3 +1441,58 @@ def test_one_incidence_table_file_has_finite_sigma(files):
         assert np.isfinite(np.asarray(read.fields["sigma"])).all()
         wo = np.array([[0.3, 0.0, 0.95]]) / np.linalg.norm([0.3, 0.0, 0.95])
         assert np.asarray(read.eval(np.array([[0.0, 0.0, 1.0]]), wo))[0, 0] == pytest.approx(0.5 / np.pi, rel=0.02)
+
+
+@pytest.mark.parametrize("anisotropic", [False, True])
+def test_stored_weights_are_the_readers_interpolation(anisotropic):
+    """The reading as a linear map of the stored values (what the least-squares values of
+    ``values = "fit"`` solve with) reproduces the reader's f·cosθo to 1e-12 at random pairs,
+    in isotropic and anisotropic (reduced: φi mirrored) files, with 0 rows below the horizon."""
+    if anisotropic:
+        model = create("microfacet", alpha_x=0.15, alpha_y=0.4, fresnel="schlick", f0=[0.9, 0.6, 0.3])
+        fields = dict(rgl.prepare_rgl(model, n_theta_i=5, n_phi_i=5, resolution=12, vndf_resolution=16).fields)
+    else:
+        model = create("sum", terms=[create("lambert", albedo=0.2), create("microfacet", alpha=0.2, fresnel="schlick",
+                                                                              f0=[0.9, 0.6, 0.3])])
+        fields = dict(rgl.prepare_rgl(model, n_theta_i=6, resolution=12, vndf_resolution=16).fields)
+    b = rgl.RGLBSDF(fields)
+    wi, wo = direction_pairs(5, 0.2, 0.2, 3000)
+    wo[:50, 2] *= -1.0  # below the horizon
+    a = b.stored_weights(wi, wo)
+    stored = np.moveaxis(fields["rgb"], 2, -1).reshape(-1, 3).astype(np.float64)
+    ref = b.eval_cos(wi, wo)
+    assert a.shape == (wi.shape[0], stored.shape[0]) and a[:50].nnz == 0
+    assert np.abs(a @ stored - ref).max() <= 1e-12 * np.abs(ref).max()
+
+
+def test_fitted_values_read_a_rough_table_closer(files):
+    """``values = "fit"`` (least-squares stored values, formats/rgl-bsdf.md step 4): a glossy table
+    with 4 % sample noise (a measured table's roughness, finer than the file's sample cells)
+    written with the fit reads closer to the table at independent pairs than with node samples
+    (median relative error of f at θi, θo ≤ 80°: measured 1.63 % → 1.50 %), the provenance says
+    which, and ``values = "auto"`` chooses the fit for it."""
+    from brdftab.grids.rusinkiewicz import RusinkiewiczGrid
+    from brdftab.table import tabulate
+
+    model = create("sum", terms=[create("lambert", albedo=0.3),
+                                 create("microfacet", alpha=0.25, fresnel="schlick", f0=[0.9, 0.6, 0.3])])
+    t = tabulate(model, RusinkiewiczGrid(24, 24, 48), progress=False)
+    noise = np.exp(0.04 * np.random.default_rng(3).standard_normal(t.ds["brdf"].shape))
+    t.ds["brdf"].values = t.ds["brdf"].values * noise
+    path = files / "rough.nc"
+    brdftab.save(t, path)
+    table = brdftab.open(path)
+    wi, wo = direction_pairs(11, 0.1, 0.1, 3000)
+    keep = (wi[:, 2] >= np.cos(np.radians(80.0))) & (wo[:, 2] >= np.cos(np.radians(80.0)))
+    wi, wo = wi[keep], wo[keep]
+    ref = np.asarray(table.eval(wi, wo), float)
+    med = {}
+    for values in ("nodes", "fit", "auto"):
+        out = files / f"rough-{values}.bsdf"
+        brdftab.save(table, out, values=values, warp="lobe", n_theta_i=9, resolution=24, vndf_resolution=32)
+        med[values] = float(np.median(np.abs(np.asarray(brdftab.open(out).eval(wi, wo), float) / ref - 1)))
+        assert _provenance(out)["values"] == ("nodes" if values == "nodes" else "fit")
+    print(f"rough table -> .bsdf, median error: nodes {100 * med['nodes']:.2f} %, fit {100 * med['fit']:.2f} %")
+    assert med["fit"] < 0.95 * med["nodes"] and med["auto"] == med["fit"]
+    with pytest.raises(ParameterError, match="values"):
+        rgl.prepare_rgl(table, values="lsq")

@@ -9,7 +9,8 @@ import numpy as np
 from ..errors import ParameterError
 from ..params import Param, suggest
 
-__all__ = ["DEFAULTS", "OPTIONS", "PARAMS", "NDF_CHOICES", "WARP_CHOICES", "MAX_RESOLUTION", "check_options", "theta_i_nodes"]
+__all__ = ["BACKSCATTER_DEFAULTS", "DEFAULTS", "OPTIONS", "PARAMS", "NDF_CHOICES", "VALUES_CHOICES", "WARP_CHOICES",
+           "MAX_RESOLUTION", "backscatter_defaults", "check_options", "theta_i_nodes"]
 
 #: Default resolutions (format options).
 DEFAULTS = {
@@ -21,6 +22,12 @@ DEFAULTS = {
     "ndf_resolution": 128,     # ndf / sigma along θ
     "ndf_phi_resolution": 256,  # ndf / sigma along φ (anisotropic files; isotropic files use 2 rows)
 }
+#: The defaults that differ for a D from the back-scattering (tables, measured data, Lambert):
+#: their structure is not in a D the warp can follow, so the file holds more incidences and
+#: samples (for the real RGL files' netCDF conversions, 52 x 52 samples at 21 incidences read
+#: 0.2-0.4 points of median error closer to the table than 48 x 48 at 17; the file is 1.9x
+#: the size of an RGL database file: formats/rgl-bsdf.md, "Tables").
+BACKSCATTER_DEFAULTS = {"n_theta_i": 21, "resolution": 49}
 MAX_RESOLUTION = 4096
 
 NDF_CHOICES = ("auto", "model", "backscatter")
@@ -28,6 +35,10 @@ NDF_CHOICES = ("auto", "model", "backscatter")
 #: (sample columns along levels of cosθo: broad reflectance), ``lobe`` (the spread even in θm
 #: beside the visible normals: lobes), or ``auto``, the one that reproduces the source better.
 WARP_CHOICES = ("auto", "level", "lobe")
+#: The stored values: ``nodes`` (the source sampled at the sample nodes: every reading exact
+#: there), ``fit`` (least squares against the source between the nodes too: :mod:`._rgl_fit`),
+#: ``auto`` (``fit`` for a D from the back-scattering, ``nodes`` for a model's own D).
+VALUES_CHOICES = ("auto", "nodes", "fit")
 
 #: The format options, declared once: names, kinds, ranges and documentation (``brdftab formats
 #: rgl``); :func:`check_options` adds the rules between them and fills in the defaults.
@@ -35,13 +46,15 @@ PARAMS = (
     Param("theta_i_deg", "floats", "Incident elevations in degrees, ascending in [0, 90) (default: n_theta_i "
           "values).", units="deg", default=None, minimum=0.0, maximum=90.0),
     Param("n_theta_i", "int", "Number of incident elevations from 0 to theta_i_max_deg, closer together towards "
-          f"grazing (default {DEFAULTS['n_theta_i']}).", default=None, minimum=1, maximum=1024),
+          f"grazing (default {DEFAULTS['n_theta_i']}; {BACKSCATTER_DEFAULTS['n_theta_i']} for a D from the "
+          "back-scattering: tables, Lambert).", default=None, minimum=1, maximum=1024),
     Param("theta_i_max_deg", "float", f"Largest incident elevation in degrees (default "
           f"{DEFAULTS['theta_i_max_deg']:g}).", units="deg", default=None, minimum=0.0, maximum=90.0,
           exclusive_minimum=True),
     Param("n_phi_i", "int", f"Anisotropic files: incident azimuths over [-180, 180] degrees (default "
           f"{DEFAULTS['n_phi_i']}).", default=None, minimum=3, maximum=1024),
-    Param("resolution", "int", f"Stored samples per incident direction, N x N (default {DEFAULTS['resolution']}).",
+    Param("resolution", "int", f"Stored samples per incident direction, N x N (default {DEFAULTS['resolution']}; "
+          f"{BACKSCATTER_DEFAULTS['resolution']} for a D from the back-scattering).",
           default=None, minimum=2, maximum=MAX_RESOLUTION),
     Param("vndf_resolution", "int", f"vndf (warp) table per incident direction, n x n (default "
           f"{DEFAULTS['vndf_resolution']}).", default=None, minimum=2, maximum=MAX_RESOLUTION),
@@ -57,6 +70,9 @@ PARAMS = (
           "source better at check pairs) | level (broad reflectance; anisotropic files: the continuous spread) | "
           "lobe (lobes). Not used for a model's own D.",
           default="auto", choices=WARP_CHOICES),
+    Param("values", "choice", "The stored values: auto (fit for a D from the back-scattering, else nodes) | nodes "
+          "(the source at the sample nodes) | fit (least squares against the source between the nodes too).",
+          default="auto", choices=VALUES_CHOICES),
     Param("wavelengths_nm", "floats", "Spectral models: wavelengths of the 'spectra' field in nm (default: the "
           "model's own).", units="nm", default=None, minimum=0.0, exclusive_minimum=True),
     Param("description", "text", "Text of the 'description' field (default: the model).", default=None),
@@ -109,8 +125,10 @@ def check_options(**options) -> dict:
 
 def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_phi_i=None, resolution=None,
                   vndf_resolution=None, ndf_resolution=None, ndf_phi_resolution=None, anisotropic=None, ndf="auto",
-                  wavelengths_nm=None, description=None, warp="auto"):
-    out = {}
+                  wavelengths_nm=None, description=None, warp="auto", values="auto"):
+    out = {"defaulted": frozenset(
+        k for k, v in (("n_theta_i", theta_i_deg is None and n_theta_i is None), ("resolution", resolution is None))
+        if v), "theta_i_max": None}
     if theta_i_deg is not None:
         if n_theta_i is not None or theta_i_max_deg is not None:
             raise ParameterError("theta_i_deg", "give either theta_i_deg or n_theta_i / theta_i_max_deg, not both")
@@ -128,6 +146,7 @@ def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_p
         if not 0 < top < 90:
             raise ParameterError("theta_i_max_deg", f"expected a number in (0, 90) degrees, got {top:g}")
         out["theta_i"] = theta_i_nodes(n, math.radians(top))
+        out["theta_i_max"] = math.radians(top)
     if anisotropic is not None and not isinstance(anisotropic, (bool, np.bool_)):
         raise ParameterError("anisotropic", f"expected true or false, got {anisotropic!r}")
     out["anisotropic"] = None if anisotropic is None else bool(anisotropic)
@@ -146,6 +165,9 @@ def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_p
     if warp not in WARP_CHOICES:
         raise ParameterError("warp", f"expected one of {', '.join(WARP_CHOICES)}, got {warp!r}")
     out["warp"] = warp
+    if values not in VALUES_CHOICES:
+        raise ParameterError("values", f"expected one of {', '.join(VALUES_CHOICES)}, got {values!r}")
+    out["values"] = values
     if wavelengths_nm is not None:
         lam = _numbers("wavelengths_nm", wavelengths_nm)
         if np.any(lam <= 0) or np.any(np.diff(lam) <= 0):
@@ -156,4 +178,14 @@ def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_p
     if description is not None and not isinstance(description, str):
         raise ParameterError("description", f"expected a string, got {description!r}")
     out["description"] = description
+    return out
+
+
+def backscatter_defaults(opts: dict) -> dict:
+    """``opts`` (resolved) with :data:`BACKSCATTER_DEFAULTS` for the options not given."""
+    out = dict(opts)
+    if "n_theta_i" in opts["defaulted"]:
+        out["theta_i"] = theta_i_nodes(BACKSCATTER_DEFAULTS["n_theta_i"], opts["theta_i_max"])
+    if "resolution" in opts["defaulted"]:
+        out["resolution"] = BACKSCATTER_DEFAULTS["resolution"]
     return out

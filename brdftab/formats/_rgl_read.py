@@ -372,6 +372,59 @@ class RGLBSDF(BRDF):
 
     def _eval_cos(self, wi, wo, lo, hi, t):
         """Mitsuba's ``eval``: f·cosθo at ``(M, 3)`` pairs above the horizon."""
+        u_m, u_wi, params = self._coordinates(wi, wo)
+        sample, _ = self._vndf.invert(u_m, params)
+        spec = self._lookup_spectra(sample, params)  # [M, C stored]
+        out = spec[:, lo] * (1.0 - t) + spec[:, hi] * t
+        if self.jacobian:
+            out = out * (self._ndf.eval(u_m) / (4.0 * self._sigma.eval(u_wi)))[:, None]
+        return out
+
+    def stored_weights(self, wi, wo):
+        """The reading as a linear map of the stored values: a sparse ``[M, S·N·N]`` matrix A
+        with ``eval_cos(wi, wo)[:, c] == A @ stored[c]`` for every stored channel c, where
+        ``stored[c]`` is the ``rgb``/``spectra`` field's channel c flattened in (φi, θi, y, x)
+        order (S = Nφi·Nθi slices). Its rows hold the bilinear weights of the 4 sample nodes
+        around the warped point in each of the 2 (isotropic) or 4 slices the reader blends,
+        times D̂/(4σ̂); 0 rows where ωi or ωo is at or below the horizon. (The writer's
+        least-squares values: :mod:`._rgl_fit`.)"""
+        import scipy.sparse as sparse
+
+        from ..geometry import as_directions
+
+        wi, wo = as_directions(wi, wo)
+        wi, wo = wi.reshape(-1, 3), wo.reshape(-1, 3)
+        n, n_rows = self.resolution, wi.shape[0]
+        size = self._spectra.shape[0] * n * n
+        above = np.flatnonzero((wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12))
+        if above.size == 0:
+            return sparse.csr_matrix((n_rows, size))
+        wi_a, wo_a = wi[above], wo[above]
+        wi_a = wi_a / np.linalg.norm(wi_a, axis=-1, keepdims=True)
+        wo_a = wo_a / np.linalg.norm(wo_a, axis=-1, keepdims=True)
+        u_m, u_wi, params = self._coordinates(wi_a, wo_a)
+        sample, _ = self._vndf.invert(u_m, params)
+        factor = self._ndf.eval(u_m) / (4.0 * self._sigma.eval(u_wi)) if self.jacobian else np.ones(above.size)
+        sl, wt = self._vndf._corners(params)
+        x = np.clip(sample[:, 0], 0.0, 1.0) * (n - 1)
+        y = np.clip(sample[:, 1], 0.0, 1.0) * (n - 1)
+        ix = np.minimum(x.astype(np.intp), n - 2)
+        iy = np.minimum(y.astype(np.intp), n - 2)
+        tx, ty = x - ix, y - iy
+        cols, vals = [], []
+        for c in range(sl.shape[0]):
+            base = sl[c] * (n * n) + iy * n + ix
+            w = wt[c] * factor
+            for offset, wc in ((0, (1.0 - tx) * (1.0 - ty)), (1, tx * (1.0 - ty)), (n, (1.0 - tx) * ty), (n + 1, tx * ty)):
+                cols.append(base + offset)
+                vals.append(w * wc)
+        k = len(cols)
+        rows = np.tile(above, k)
+        return sparse.csr_matrix((np.concatenate(vals), (rows, np.concatenate(cols))), shape=(n_rows, size))
+
+    def _coordinates(self, wi, wo):
+        """The reader's coordinates of unit pairs above the horizon: u_m, u_wi and the
+        parameters (φi, θi) of the slices (after the reduction's turn of anisotropic files)."""
         if not self.isotropic and self.reduction >= 2:
             # mulsign_neg(v, s) = v · (s >= 0 ? −1 : 1): wi goes to y <= 0 (and x <= 0 for a
             # quarter); reduction 2 turns both axes by the sign of y (a rotation by π).
@@ -386,13 +439,7 @@ class RGLBSDF(BRDF):
         u_wi = np.stack([theta2u(th_i), phi2u(ph_i)], axis=-1)
         uy = phi2u(ph_m - ph_i if self.isotropic else ph_m)
         u_m = np.stack([theta2u(th_m), uy - np.floor(uy)], axis=-1)
-        params = (ph_i, th_i)
-        sample, _ = self._vndf.invert(u_m, params)
-        spec = self._lookup_spectra(sample, params)  # [M, C stored]
-        out = spec[:, lo] * (1.0 - t) + spec[:, hi] * t
-        if self.jacobian:
-            out = out * (self._ndf.eval(u_m) / (4.0 * self._sigma.eval(u_wi)))[:, None]
-        return out
+        return u_m, u_wi, (ph_i, th_i)
 
     #: The albedo integrals of :mod:`brdftab.integrate` use :meth:`albedo_rule` over the whole
     #: hemisphere (their coverage is the hemisphere's).
