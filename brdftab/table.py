@@ -1365,15 +1365,17 @@ def _multilinear(values, idx, axes, valid=None, fill=None):
     for w, pos in _corners(lows, highs, fracs, strides, m):
         if not w.any():
             continue
+        # a corner of weight 0 takes no part (its sample may be NaN), as in the compiled kernel
+        part = (w != 0.0)[:, None]
         v = flat[pos]
         if vflat is None:
-            out += w[:, None] * v
+            out += w[:, None] * np.where(part, v, 0.0)
             continue
-        ok = vflat[pos]
+        ok = vflat[pos] & part
         wv = np.where(ok, w[:, None], 0.0)
         out += wv * np.where(ok, v, 0.0)
         den += wv
-        plain += w[:, None] * np.where(ok | (v >= 0), v, 0.0)
+        plain += w[:, None] * np.where(part & (ok | (v >= 0)), v, 0.0)
     if vflat is None:
         return out
     with np.errstate(invalid="ignore", divide="ignore"):

@@ -637,3 +637,26 @@ def test_a_kernel_is_published_only_with_its_device_functions_compiled(monkeypat
     _race_kernel(np.arange(5.0), out)
     assert seen == ["CPUDispatcher"]
     assert np.array_equal(out, 2.0 * np.arange(5.0))
+
+
+def test_undeclared_nan_samples_read_the_same_in_both_evaluations():
+    """A table with NaN samples that are not declared missing: the compiled interpolation skips a
+    corner of weight 0, so a NaN sample there does not reach the result; the numpy reference
+    multiplied it by 0 (NaN) and read NaN where the compiled one read a value (13 of 20 000
+    pairs). Both now read NaN at the same pairs and agree elsewhere."""
+    from brdftab.geometry import mirror_biased_pairs
+    from brdftab.grids.rusinkiewicz import RusinkiewiczGrid
+    from brdftab.table import tabulate
+
+    t = tabulate(models.create("microfacet", alpha=0.3), RusinkiewiczGrid(16, 16, 32), progress=False)
+    v = t.ds["brdf"].values
+    flat = v.reshape(-1, v.shape[-1])
+    flat[np.random.default_rng(0).integers(0, flat.shape[0], 30)] = np.nan
+    t.ds["brdf"].values = flat.reshape(v.shape)
+    wi, wo = mirror_biased_pairs(20000, np.random.default_rng(1))
+    compiled = np.asarray(t.eval(wi, wo))
+    with numpy_reference():
+        reference = np.asarray(t.eval(wi, wo))
+    nan = np.isnan(compiled)
+    assert nan.any() and np.array_equal(nan, np.isnan(reference))
+    assert np.allclose(compiled[~nan], reference[~nan], rtol=RTOL, atol=0.0)

@@ -1496,3 +1496,30 @@ def test_fitted_values_read_a_rough_table_closer(files):
     assert med["fit"] < 0.95 * med["nodes"] and med["auto"] == med["fit"]
     with pytest.raises(ParameterError, match="values"):
         rgl.prepare_rgl(table, values="lsq")
+
+
+def test_non_finite_direction_reads_nan_in_both_evaluations():
+    """A direction with a NaN component reads NaN in the compiled evaluation and in its numpy
+    reference alike (the numpy reference turned the NaN into an index and raised IndexError),
+    and the other pairs are unchanged; the linear map of the stored values has a 0 row there."""
+    from brdftab.brdf import numpy_reference
+
+    b = rgl.RGLBSDF(rgl.prepare_rgl(create("microfacet", alpha=0.3), n_theta_i=5, resolution=12,
+                                    vndf_resolution=16).fields)
+    wi = np.array([[np.nan, 0.0, 1.0], [0.0, 0.0, 1.0], [0.2, 0.1, np.inf]])
+    wo = np.array([[0.3, 0.0, 0.95], [0.3, 0.0, 0.95], [0.3, 0.0, 0.95]])
+    compiled = b.eval_cos(wi, wo)
+    with numpy_reference():
+        reference = b.eval_cos(wi, wo)
+    assert np.isnan(compiled[[0, 2]]).all() and np.isnan(reference[[0, 2]]).all()
+    assert reference[1] == pytest.approx(compiled[1], rel=1e-12) and compiled[1, 0] > 0
+    assert b.stored_weights(wi, wo)[[0, 2]].nnz == 0
+
+
+def test_vndf_resolution_of_two_is_refused():
+    """With a 2 x 2 vndf table every node lies on an edge of the square, where the warp vanishes
+    (θm = 0 or 90°): the slices were all NaN. At least 3 is asked for, in one line."""
+    with pytest.raises(ParameterError, match=r"vndf_resolution: expected a whole number in \[3, "):
+        rgl.prepare_rgl(create("lambert", albedo=0.5), vndf_resolution=2)
+    fields = rgl.prepare_rgl(create("lambert", albedo=0.5), n_theta_i=3, resolution=8, vndf_resolution=3).fields
+    assert np.isfinite(fields["vndf"]).all() and (fields["vndf"] > 0).any()

@@ -57,7 +57,8 @@ PARAMS = (
           f"{BACKSCATTER_DEFAULTS['resolution']} for a D from the back-scattering).",
           default=None, minimum=2, maximum=MAX_RESOLUTION),
     Param("vndf_resolution", "int", f"vndf (warp) table per incident direction, n x n (default "
-          f"{DEFAULTS['vndf_resolution']}).", default=None, minimum=2, maximum=MAX_RESOLUTION),
+          f"{DEFAULTS['vndf_resolution']}; at least 3: with 2 every node lies on an edge, where the warp "
+          "vanishes).", default=None, minimum=3, maximum=MAX_RESOLUTION),
     Param("ndf_resolution", "int", f"ndf and sigma tables along theta (default {DEFAULTS['ndf_resolution']}).",
           default=None, minimum=2, maximum=MAX_RESOLUTION),
     Param("ndf_phi_resolution", "int", f"Anisotropic files: ndf and sigma tables along phi (default "
@@ -70,7 +71,7 @@ PARAMS = (
           "source better at check pairs) | level (broad reflectance; anisotropic files: the continuous spread) | "
           "lobe (lobes). Not used for a model's own D.",
           default="auto", choices=WARP_CHOICES),
-    Param("values", "choice", "The stored values: auto (fit for a D from the back-scattering, else nodes) | nodes "
+    Param("values", "choice", "The stored values: auto (for a D from the back-scattering the fit where node samples miss, else nodes) | nodes "
           "(the source at the sample nodes) | fit (least squares against the source between the nodes too).",
           default="auto", choices=VALUES_CHOICES),
     Param("wavelengths_nm", "floats", "Spectral models: wavelengths of the 'spectra' field in nm (default: the "
@@ -158,7 +159,7 @@ def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_p
         out["n_phi_i"] = DEFAULTS["n_phi_i"]
     for key, value in (("resolution", resolution), ("vndf_resolution", vndf_resolution),
                        ("ndf_resolution", ndf_resolution), ("ndf_phi_resolution", ndf_phi_resolution)):
-        out[key] = DEFAULTS[key] if value is None else _int(key, value, 2)
+        out[key] = DEFAULTS[key] if value is None else _int(key, value, 3 if key == "vndf_resolution" else 2)
     if ndf not in NDF_CHOICES:
         raise ParameterError("ndf", f"expected one of {', '.join(NDF_CHOICES)}, got {ndf!r}")
     out["ndf"] = ndf

@@ -365,7 +365,10 @@ class RGLBSDF(BRDF):
         lam = self.layout.resolve(wavelengths)
         lo, hi, t = self._channel_weights(lam, self.layout.n_out(lam))
         out = np.zeros((wi.shape[0], lo.size))
-        above = (wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12)
+        # a non-finite component reads NaN, as in the compiled evaluation
+        finite = np.isfinite(wi).all(axis=-1) & np.isfinite(wo).all(axis=-1)
+        out[~finite] = np.nan
+        above = finite & (wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12)
         if above.any():
             out[above] = self._eval_cos(wi[above], wo[above], lo, hi, t)
         return out.reshape(lead + (lo.size,))
@@ -386,7 +389,7 @@ class RGLBSDF(BRDF):
         ``stored[c]`` is the ``rgb``/``spectra`` field's channel c flattened in (φi, θi, y, x)
         order (S = Nφi·Nθi slices). Its rows hold the bilinear weights of the 4 sample nodes
         around the warped point in each of the 2 (isotropic) or 4 slices the reader blends,
-        times D̂/(4σ̂); 0 rows where ωi or ωo is at or below the horizon. (The writer's
+        times D̂/(4σ̂); 0 rows where ωi or ωo is at or below the horizon or not finite. (The writer's
         least-squares values: :mod:`._rgl_fit`.)"""
         import scipy.sparse as sparse
 
@@ -396,7 +399,8 @@ class RGLBSDF(BRDF):
         wi, wo = wi.reshape(-1, 3), wo.reshape(-1, 3)
         n, n_rows = self.resolution, wi.shape[0]
         size = self._spectra.shape[0] * n * n
-        above = np.flatnonzero((wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12))
+        finite = np.isfinite(wi).all(axis=-1) & np.isfinite(wo).all(axis=-1)
+        above = np.flatnonzero(finite & (wi[:, 2] > 1e-12) & (wo[:, 2] > 1e-12))
         if above.size == 0:
             return sparse.csr_matrix((n_rows, size))
         wi_a, wo_a = wi[above], wo[above]

@@ -13,7 +13,10 @@ either :func:`_broad_spread`, and in isotropic files :func:`_level_warp` up to
 warp of :func:`_vndf_table`, whichever reproduces the source better: option ``warp``,
 :func:`_closest`); the stored values are f(ωi, ωo)·cosθo·4σ̂/D̂ at the warped nodes, with
 σ̂, D̂ the interpolants the readers evaluate, so that every reader returns f·cosθo exactly at
-the nodes; ``luminance`` is the luminance of f·cosθo per unit area of the unit square, so that
+the nodes, or (option ``values``; for a D from the back-scattering where those node samples
+miss: :data:`FIT_WHEN_SCORE`) values solved by least squares against the source between the
+nodes too (:mod:`._rgl_fit`); a D from the back-scattering also gets more θi nodes and samples
+by default (:data:`._rgl_options.BACKSCATTER_DEFAULTS`); ``luminance`` is the luminance of f·cosθo per unit area of the unit square, so that
 Mitsuba samples ωo in proportion to f·cosθo.
 """
 
