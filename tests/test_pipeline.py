@@ -196,7 +196,8 @@ def test_a_format_that_samples_the_model_is_judged_against_it(tmp_path):
 
     root = Path(__file__).resolve().parents[1]
     text = (root / "specs" / "solar-cell-small2021.toml").read_text()
-    text = re.sub(r'(?m)^path = .*$', 'path = "cell.bsdf"\nresolution = 24', text)  # a small file: fast checks
+    # a small file with node samples: fast checks
+    text = re.sub(r'(?m)^path = .*$', 'path = "cell.bsdf"\nresolution = 24\nn_theta_i = 17\nvalues = "nodes"', text)
     text = re.sub(r'(?m)^dtype = .*$', '', text)
     spec = tmp_path / "cell.toml"
     spec.write_text(text)

@@ -142,8 +142,9 @@ def test_checks_say_what_the_samples_cover_and_pass_nothing_over_no_pairs():
 
 def test_extrapolation_reported_for_a_bsdf_is_the_written_files(tmp_path):
     """An RGL file of a scattered table: the writer builds two candidate warps and evaluates
-    the source again to choose (formats/rgl-bsdf.md, step 3); the extrapolation convert reports
-    counts the nodes of the file written only, as when its warp is asked for."""
+    the source again to choose (formats/rgl-bsdf.md, step 3), and again to fit the values of
+    this rough table (step 4); the extrapolation convert reports counts the nodes of the file
+    written only, as when its warp is asked for."""
     import json
 
     from brdftab.convert import convert
@@ -153,8 +154,10 @@ def test_extrapolation_reported_for_a_bsdf_is_the_written_files(tmp_path):
     for _ in range(2):  # auto, then the warp it chose, asked for
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result = convert(tmp_path / "s.nc", tmp_path / f"s-{warp}.bsdf", options={"warp": warp},
+            result = convert(tmp_path / "s.nc", tmp_path / f"s-{warp}.bsdf",
+                             options={"warp": warp, "n_theta_i": 9, "resolution": 24},  # small: fast
                              allow_invalid=True, progress=False)
         got[warp] = result.extrapolated
         warp = json.loads(bytes(brdftab.open(tmp_path / f"s-{warp}.bsdf").fields["provenance"]).decode())["warp"]
     assert got["auto"] == got[warp] and got["auto"]["outside"] > 0
+    assert json.loads(bytes(brdftab.open(tmp_path / "s-auto.bsdf").fields["provenance"]).decode())["values"] == "fit"
