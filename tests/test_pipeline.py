@@ -116,8 +116,9 @@ def _overflowing_samples(spec_path):
 
 
 @pytest.mark.parametrize("output", ['path = "big.nc"\ndtype = "float32"', 'path = "big.exr"',
-                                    'path = "big.bsdf"\nresolution = 8\ntheta_i_deg = [0, 40, 80]'],
-                         ids=["netcdf-float32", "exr", "rgl"])
+                                    'path = "big.bsdf"\nresolution = 8\ntheta_i_deg = [0, 40, 80]',
+                                    'path = "big.bsdf"\nresolution = 8\ntheta_i_deg = [0, 40, 80]\nvalues = "fit"'],
+                         ids=["netcdf-float32", "exr", "rgl", "rgl-fit"])
 def test_values_beyond_the_storage_type_fail_finite_and_nothing_is_written(tmp_path, output):
     from _cli import run as cli_run
 

@@ -526,7 +526,9 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
     else:
         best, score = _closest(brdf, lam, candidates)
     tally = tallies[next(i for i, c in enumerate(candidates) if c is best)]
-    if opts["values"] == "fit":
+    if opts["values"] == "fit" and score < np.inf:
+        # (a candidate no reader takes, e.g. values beyond float32, is written with its node
+        # samples: the checks of the file say why, as for values = "nodes")
         best = _fit(brdf, best, lam)
     elif fit and FIT_WHEN_SCORE < score < np.inf:  # auto: fitted values where the node samples miss
         best, _ = _closest(brdf, lam, [best, _fit(brdf, best, lam)])
