@@ -23,7 +23,8 @@ Measured: a glossy table with 4 % sample noise reads 1.63 → 1.50 % median erro
 conversions written back to ``.bsdf`` read 0.1–0.3 points of median error closer to the table
 than node samples do (a script, formats/rgl-bsdf.md). Not a gain everywhere: a Lambertian
 table's worst error grows with the fit, which ``values = "auto"`` therefore tries only where
-node samples miss (:data:`._rgl_write.FIT_WHEN_SCORE`).
+node samples miss (:data:`._rgl_write.FIT_WHEN_SCORE`), and keeps only where it reads no
+farther off at grazing directions (:data:`._rgl_write.FIT_GRAZING_TOLERANCE`).
 """
 
 from __future__ import annotations
@@ -73,14 +74,8 @@ def fit_values(brdf, fields: dict, key: str, lam, n_source: int) -> np.ndarray:
     wi_z = (max(c_low, float(np.cos(th[-1]))), float(np.cos(th[0])))
     wi, wo = mirror_biased_pairs(n_queries, np.random.default_rng(FIT_SEED), z_low=c_low, z_span=1.0 - c_low,
                                  wi_z=wi_z)
-    # the queries are not the source's readings: a scattered table keeps the counts of its
-    # extrapolated queries as they were
-    counts = getattr(brdf, "extrapolation", None)
-    before = list(counts) if isinstance(counts, list) else None
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):  # (a scattered table's extrapolation counts: prepare_rgl keeps the file's)
         ref = np.asarray(brdf.eval(wi, wo, lam), float) * wo[:, 2:3]
-    if before is not None:
-        counts[:] = before
     ok = np.all(np.isfinite(ref), axis=-1)
     a = RGLBSDF(fields, "<candidate>").stored_weights(wi[ok], wo[ok])
     ref = ref[ok]
