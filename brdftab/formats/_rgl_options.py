@@ -72,7 +72,8 @@ PARAMS = (
           "source better at check pairs) | level (broad reflectance; anisotropic files: the continuous spread) | "
           "lobe (lobes). Not used for a model's own D.",
           default="auto", choices=WARP_CHOICES),
-    Param("values", "choice", "The stored values: auto (for a D from the back-scattering the fit where node samples miss, else nodes) | nodes "
+    Param("values", "choice", "The stored values: auto (isotropic RGB files with a D from the back-scattering: the fit where node samples "
+          "miss and it reads closer; else nodes) | nodes "
           "(the source at the sample nodes) | fit (least squares against the source between the nodes too).",
           default="auto", choices=VALUES_CHOICES),
     Param("wavelengths_nm", "floats", "Spectral models: wavelengths of the 'spectra' field in nm (default: the "
