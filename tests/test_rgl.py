@@ -1523,7 +1523,7 @@ def test_auto_keeps_node_samples_where_the_fit_reads_farther_off_at_grazing_dire
         assert json.loads(bytes(fields["provenance"]).decode())["values"] == ("nodes" if values == "auto" else "fit")
         p95[values] = float(np.percentile(np.abs(rgl.RGLBSDF(fields).eval_cos(wi, wo) / ref - 1), 95))
     print(f"Lambert at 16 x 16, θi 85-89°: p95 node samples {100 * p95['auto']:.1f} %, fit {100 * p95['fit']:.1f} %")
-    assert p95["fit"] > 1.5 * p95["auto"]
+    assert p95["fit"] > 5.0 * p95["auto"]
 
 
 def test_non_finite_direction_reads_nan_in_both_evaluations():

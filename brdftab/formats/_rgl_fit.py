@@ -12,9 +12,9 @@ problem
     minimize  Σ_q [(A v − r)_q / (|r_q| + FIT_FLOOR·r₉₉)]²  +  FIT_DAMP² Σ_j [(v_j − v0_j) / s_j]²
 
 over seeded query pairs q (:data:`FIT_QUERIES_PER_VALUE` per stored value, at most
-:data:`FIT_MAX_QUERIES`; half uniform in solid angle, half near the mirror direction,
-θi within the file's θi nodes, θi, θo ≤ :data:`FIT_MAX_THETA_DEG`), r = the source's f·cosθo, v0 the node samples,
-s_j = max(|v0_j|, FIT_FLOOR·max|v0|): the relative error of the reading, with a pull towards
+:data:`FIT_MAX_QUERIES`; half uniform in solid angle, half near the mirror direction, θi within
+the file's θi nodes, θi, θo ≤ :data:`FIT_MAX_THETA_DEG`), r = the source's f·cosθo, v0 the node
+samples, s_j = max(|v0_j|, FIT_FLOOR·max|v0|): the relative error of the reading, with a pull towards
 the node samples that keeps values no query reaches (and the tails) at their samples. Solved by
 LSQR per stored channel; negative results are set to 0.
 
@@ -31,8 +31,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["FIT_DAMP", "FIT_FLOOR", "FIT_ITERATIONS", "FIT_MAX_QUERIES", "FIT_MAX_THETA_DEG", "FIT_QUERIES_PER_VALUE", "FIT_SEED",
-           "fit_values"]
+__all__ = ["FIT_DAMP", "FIT_FLOOR", "FIT_ITERATIONS", "FIT_MAX_QUERIES", "FIT_MAX_THETA_DEG", "FIT_QUERIES_PER_VALUE",
+           "FIT_SEED", "fit_values"]
 
 #: Query pairs per stored value (per slice sample node), and their cap.
 FIT_QUERIES_PER_VALUE = 4

@@ -38,7 +38,8 @@ NDF_CHOICES = ("auto", "model", "backscatter")
 WARP_CHOICES = ("auto", "level", "lobe")
 #: The stored values: ``nodes`` (the source sampled at the sample nodes: every reading exact
 #: there), ``fit`` (least squares against the source between the nodes too: :mod:`._rgl_fit`),
-#: ``auto`` (``fit`` for a D from the back-scattering, ``nodes`` for a model's own D).
+#: ``auto`` (in isotropic RGB files whose D is from the back-scattering, ``fit`` where node
+#: samples miss and it reads closer; otherwise ``nodes``).
 VALUES_CHOICES = ("auto", "nodes", "fit")
 
 #: The format options, declared once: names, kinds, ranges and documentation (``brdftab formats
@@ -72,9 +73,9 @@ PARAMS = (
           "source better at check pairs) | level (broad reflectance; anisotropic files: the continuous spread) | "
           "lobe (lobes). Not used for a model's own D.",
           default="auto", choices=WARP_CHOICES),
-    Param("values", "choice", "The stored values: auto (isotropic RGB files with a D from the back-scattering: the fit where node samples "
-          "miss and it reads closer; else nodes) | nodes "
-          "(the source at the sample nodes) | fit (least squares against the source between the nodes too).",
+    Param("values", "choice", "The stored values: auto (isotropic RGB files with a D from the back-scattering: "
+          "the fit where node samples miss and it reads closer; else nodes) | nodes (the source at the sample nodes) "
+          "| fit (least squares against the source between the nodes too).",
           default="auto", choices=VALUES_CHOICES),
     Param("wavelengths_nm", "floats", "Spectral models: wavelengths of the 'spectra' field in nm (default: the "
           "model's own).", units="nm", default=None, minimum=0.0, exclusive_minimum=True),

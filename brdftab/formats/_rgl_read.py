@@ -389,8 +389,8 @@ class RGLBSDF(BRDF):
         ``stored[c]`` is the ``rgb``/``spectra`` field's channel c flattened in (φi, θi, y, x)
         order (S = Nφi·Nθi slices). Its rows hold the bilinear weights of the 4 sample nodes
         around the warped point in each of the 2 (isotropic) or 4 slices the reader blends,
-        times D̂/(4σ̂); 0 rows where ωi or ωo is at or below the horizon or not finite. (The writer's
-        least-squares values: :mod:`._rgl_fit`.)"""
+        times D̂/(4σ̂); 0 rows where ωi or ωo is at or below the horizon or not finite. (The
+        writer's least-squares values: :mod:`._rgl_fit`.)"""
         import scipy.sparse as sparse
 
         from ..geometry import as_directions
@@ -410,16 +410,13 @@ class RGLBSDF(BRDF):
         sample, _ = self._vndf.invert(u_m, params)
         factor = self._ndf.eval(u_m) / (4.0 * self._sigma.eval(u_wi)) if self.jacobian else np.ones(above.size)
         sl, wt = self._vndf._corners(params)
-        x = np.clip(sample[:, 0], 0.0, 1.0) * (n - 1)
-        y = np.clip(sample[:, 1], 0.0, 1.0) * (n - 1)
-        ix = np.minimum(x.astype(np.intp), n - 2)
-        iy = np.minimum(y.astype(np.intp), n - 2)
-        tx, ty = x - ix, y - iy
+        ix, iy, tx, ty = self._cells(sample)
         cols, vals = [], []
         for c in range(sl.shape[0]):
             base = sl[c] * (n * n) + iy * n + ix
             w = wt[c] * factor
-            for offset, wc in ((0, (1.0 - tx) * (1.0 - ty)), (1, tx * (1.0 - ty)), (n, (1.0 - tx) * ty), (n + 1, tx * ty)):
+            corners = ((0, (1.0 - tx) * (1.0 - ty)), (1, tx * (1.0 - ty)), (n, (1.0 - tx) * ty), (n + 1, tx * ty))
+            for offset, wc in corners:
                 cols.append(base + offset)
                 vals.append(w * wc)
         k = len(cols)
@@ -480,14 +477,20 @@ class RGLBSDF(BRDF):
         weight[ok] = 8.0 * np.pi ** 2 * u_m[ok, 0] * np.sin(th_m[ok]) * cos_im[ok] / (pdf[ok] * n * n)
         return (wo * flip)[ok], weight[ok]
 
-    def _lookup_spectra(self, sample, params):
-        sl, wt = self._vndf._corners(params)
+    def _cells(self, sample):
+        """The cell of the N × N stored values holding each point of the unit square: its lower
+        node (ix, iy) and the fractions (tx, ty) within it."""
         n = self.resolution
         x = np.clip(sample[:, 0], 0.0, 1.0) * (n - 1)
         y = np.clip(sample[:, 1], 0.0, 1.0) * (n - 1)
         ix = np.minimum(x.astype(np.intp), n - 2)
         iy = np.minimum(y.astype(np.intp), n - 2)
-        tx, ty = (x - ix)[:, None], (y - iy)[:, None]
+        return ix, iy, x - ix, y - iy
+
+    def _lookup_spectra(self, sample, params):
+        sl, wt = self._vndf._corners(params)
+        ix, iy, tx, ty = self._cells(sample)
+        tx, ty = tx[:, None], ty[:, None]
         out = 0.0
         for c in range(sl.shape[0]):
             s = sl[c]

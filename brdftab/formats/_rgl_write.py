@@ -16,8 +16,8 @@ warp of :func:`_vndf_table`, whichever reproduces the source better: option ``wa
 the nodes, or (option ``values``; for a D from the back-scattering where those node samples
 miss: :data:`FIT_WHEN_SCORE`) values solved by least squares against the source between the
 nodes too (:mod:`._rgl_fit`); a D from the back-scattering also gets more θi nodes and samples
-by default (:data:`._rgl_options.BACKSCATTER_DEFAULTS`); ``luminance`` is the luminance of f·cosθo per unit area of the unit square, so that
-Mitsuba samples ωo in proportion to f·cosθo.
+by default (:data:`._rgl_options.BACKSCATTER_DEFAULTS`); ``luminance`` is the luminance of
+f·cosθo per unit area of the unit square, so that Mitsuba samples ωo in proportion to f·cosθo.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from ..channels import luminance_weights as _luminance_weights
 from ..errors import BrdftabError, ParameterError
 from ._marginal2d import Marginal2D
 from ._rgl_ndf import backscatter_bound, backscatter_ndf, model_ndf, sigma_table
-from ._rgl_fit import fit_values
+from ._rgl_fit import FIT_MAX_QUERIES, FIT_QUERIES_PER_VALUE, fit_values
 from ._rgl_options import backscatter_defaults, check_options
 from ._rgl_read import RGB, RGLBSDF
 from ._rgl_warp import bilinear, node_geometry, phi2u, sph, theta2u, u2phi, u2theta
@@ -464,8 +464,6 @@ def _check_size(brdf, n_slices, opts, n_chan, fit=False, anisotropic=False):
     """Refuse a file whose working arrays would not fit in this machine's memory (with ``fit``,
     also those of the least-squares values: the sparse map of the query pairs, about 100 bytes
     per non-zero with its scaled copies, 8 or 16 non-zeros per pair, and the source's values)."""
-    from ._rgl_fit import FIT_MAX_QUERIES, FIT_QUERIES_PER_VALUE
-
     n, nv = opts["resolution"], opts["vndf_resolution"]
     need = 8.0 * n_slices * (n * n * (n_chan + 24) + 2 * nv * nv)  # float64 values + node geometry
     if fit:
@@ -527,17 +525,17 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
             counts[:] = before
         candidates.append(_fields(brdf, opts, lam, ndf, source, anisotropic, k))
         tallies.append(list(counts) if before is not None else None)
-    fit = opts["values"] == "fit" or (opts["values"] == "auto" and broad)
-    if len(candidates) == 1 and not fit:
+    mode = _fit_mode(opts, broad, anisotropic, 3 if lam is None else lam.size)
+    if len(candidates) == 1 and mode is None:
         best, score = candidates[0], None
     else:
         best, score = _closest(brdf, lam, candidates)
     tally = tallies[next(i for i, c in enumerate(candidates) if c is best)]
-    if opts["values"] == "fit" and score < np.inf:
+    if mode == "fit" and score < np.inf:
         # (a candidate no reader takes, e.g. values beyond float32, is written with its node
         # samples: the checks of the file say why, as for values = "nodes")
         best = _fit(brdf, best, lam)
-    elif fit and FIT_WHEN_SCORE < score < np.inf and not anisotropic and best.n_source <= 3:
+    elif mode == "try" and FIT_WHEN_SCORE < score < np.inf:
         # auto: fitted values where the node samples miss, kept where they read closer to the
         # source at the check pairs and not much farther at grazing ones
         fitted = _fit(brdf, best, lam)
@@ -575,6 +573,16 @@ FIT_WHEN_SCORE = 0.2
 FIT_GRAZING_TOLERANCE = 1.2
 
 
+def _fit_mode(opts, broad, anisotropic, n_chan):
+    """``"fit"`` (option ``values = "fit"``), ``"try"`` (``auto`` in an isotropic RGB or grey
+    file whose D is from the back-scattering: :data:`FIT_WHEN_SCORE`) or None (node samples)."""
+    if opts["values"] == "fit":
+        return "fit"
+    if opts["values"] == "auto" and broad and not anisotropic and n_chan <= 3:
+        return "try"
+    return None
+
+
 @dataclass(eq=False)
 class _Candidate:
     """A candidate file: its fields, and the weights of its luminance map (D̂/(4σ̂)·|dωo/ds|)."""
@@ -610,8 +618,8 @@ def _fields(brdf, opts, lam, ndf, source, anisotropic, kind) -> _Candidate:
         theta_i, level = _level_incidences(theta_i)
     phi_i = (np.linspace(-np.pi, np.pi, opts["n_phi_i"]) if anisotropic else np.zeros(1)).astype(np.float32)
     n_chan = 3 if lam is None else lam.size
-    fit = opts["values"] == "fit" or (opts["values"] == "auto" and broad and not anisotropic and n_chan <= 3)
-    _check_size(brdf, phi_i.size * theta_i.size, opts, n_chan, fit, anisotropic)
+    _check_size(brdf, phi_i.size * theta_i.size, opts, n_chan, _fit_mode(opts, broad, anisotropic, n_chan) is not None,
+                anisotropic)
     th_i, ph_i = theta_i.astype(np.float64), phi_i.astype(np.float64)
 
     ny = opts["ndf_phi_resolution"] if anisotropic else 2
