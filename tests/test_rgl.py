@@ -1139,6 +1139,48 @@ def test_measured_file_round_trip_through_netcdf(files):
     assert size <= 2 * min(source_size, database_tables)
 
 
+def test_fine_structure_of_a_tables_d_is_kept_in_its_ndf(files):
+    """A measured-like file whose D has structure at the scale of its own 128 ``ndf`` nodes (a
+    ripple of ±10 % with a period of 4 nodes; the real films' D are noisy at that scale),
+    converted to netCDF (written although the default grid misses the ripple: that is not what
+    is judged here) and back to .bsdf with the default options: the new file keeps the
+    table's D at 1025 nodes, and Mitsuba's reading of it reproduces the netCDF table at
+    θi, θo <= 80° (pairs uniform in cosθ) with a median below 0.5 % and a 95th percentile
+    below 5 %, half the issue's bounds (formats/rgl-bsdf.md, step 1; measured 0.30 % and
+    1.3 %). The former defaults (``ndf`` at 128 nodes, 21 θi, 49 x 49, vndf 64 x 64) read
+    0.70 % and 2.3 %; the ``ndf`` at 128 nodes with the lobe warp's present layout 3.7 % and
+    10 % (by a script): the ripple falls into the stored values."""
+    from _measured import Asymmetric
+
+    from brdftab.convert import convert
+    from brdftab.formats._tensor import write_tensor_file
+
+    m = brdftab.models
+    model = Asymmetric(m.create("sum", terms=[
+        m.create("lambert", albedo=[0.02, 0.03, 0.04]),
+        m.create("microfacet", alpha=0.05, fresnel="schlick", f0=[0.5, 0.4, 0.3])]), 0.3)
+    fields = dict(rgl.prepare_rgl(model, n_theta_i=8, theta_i_max_deg=80.0, resolution=32,
+                                  vndf_resolution=128, values="nodes").fields)
+    fields.pop("provenance")
+    ripple = 1.0 + 0.1 * np.sin(0.5 * np.pi * np.arange(fields["ndf"].shape[1]))
+    fields["ndf"] = (fields["ndf"] * ripple[None, :]).astype(np.float32)
+    src, nc, out = files / "rippled.bsdf", files / "rippled.nc", files / "rippled-again.bsdf"
+    write_tensor_file(src, fields)
+    convert(src, nc, progress=False, allow_invalid=True)
+    convert(nc, out, progress=False)
+    table = brdftab.open(nc)
+    rng = np.random.default_rng(12)  # pairs uniform in cosθ up to 80°
+    mu, phi = rng.uniform(np.cos(np.radians(80.0)), 1.0, (2, 1500)), rng.uniform(-np.pi, np.pi, (2, 1500))
+    wi, wo = (_f32(rgl.sph(np.arccos(mu[k]), phi[k])) for k in (0, 1))
+    ref = np.asarray(table.eval(wi, wo), float) * wo[:, 2:3]
+    with mi.variant_context("scalar_rgb"):
+        got = mitsuba_eval(out, wi, wo)
+    big = np.abs(ref) > 1e-3 * np.percentile(np.abs(ref), 99)
+    rel = np.abs(got[big] - ref[big]) / np.abs(ref[big])
+    assert_percentiles("rippled D: .bsdf -> .nc -> .bsdf, Mitsuba vs the netCDF table", rel, {50: 0.005, 95: 0.05})
+    assert parse_tensor(out.read_bytes())["ndf"].shape == (2, 1025)
+
+
 _SPECS = Path(__file__).resolve().parent.parent / "specs"
 
 
@@ -1507,8 +1549,9 @@ def test_fitted_values_read_a_rough_table_closer(files):
 def test_auto_keeps_node_samples_where_the_fit_reads_farther_off_at_grazing_directions():
     """``values = "auto"`` judges the fitted values up to 80° and in four grazing bands (θi in
     80-85° and 85-89° with θo within 80°, and swapped; formats/rgl-bsdf.md step 4): a
-    Lambertian at 16 x 16 samples, whose fit reads closer up to 80° but several times farther
-    off at grazing incidence, keeps its node samples; ``values = "fit"`` writes the fit, and at
+    Lambertian at 16 x 16 samples with the lobe warp, whose fit reads closer up to 80° but
+    several times farther off at grazing incidence (measured 2.4 % -> 22 %), keeps its node
+    samples; ``values = "fit"`` writes the fit, and at
     independent pairs with θi in 85-89° and θo within 80° it is the farther off of the two
     (95th percentile of the relative error of Mitsuba's f·cosθo)."""
     model = create("lambert", albedo=[0.2, 0.5, 0.8])
@@ -1519,10 +1562,10 @@ def test_auto_keeps_node_samples_where_the_fit_reads_farther_off_at_grazing_dire
     ref = model.eval(wi, wo) * wo[:, 2:3]
     p95 = {}
     for values in ("auto", "fit"):
-        fields = rgl.prepare_rgl(model, resolution=16, values=values).fields
+        fields = rgl.prepare_rgl(model, resolution=16, values=values, warp="lobe").fields
         assert json.loads(bytes(fields["provenance"]).decode())["values"] == ("nodes" if values == "auto" else "fit")
         p95[values] = float(np.percentile(np.abs(rgl.RGLBSDF(fields).eval_cos(wi, wo) / ref - 1), 95))
-    print(f"Lambert at 16 x 16, θi 85-89°: p95 node samples {100 * p95['auto']:.1f} %, fit {100 * p95['fit']:.1f} %")
+    print(f"Lambert at 16 x 16, lobe warp, θi 85-89°: p95 node samples {100 * p95['auto']:.1f} %, fit {100 * p95['fit']:.1f} %")
     assert p95["fit"] > 5.0 * p95["auto"]
 
 

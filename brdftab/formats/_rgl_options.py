@@ -22,14 +22,36 @@ DEFAULTS = {
     "ndf_resolution": 128,     # ndf / sigma along θ
     "ndf_phi_resolution": 256,  # ndf / sigma along φ (anisotropic files; isotropic files use 2 rows)
 }
-#: The defaults that differ for a D from the back-scattering (tables, measured data, Lambert):
-#: their structure is not in a D the warp can follow, so the file holds more incidences and
-#: samples (for the real RGL files' netCDF conversions, 52 x 52 samples at 21 incidences read
-#: 0.1-0.4 points of median error closer to the table than 48 x 48 at 17, 49 x 49 nearly as
-#: close; an RGB file is 1.75x the size of an RGL database file, 1.84x with the level warp's
-#: twin slice: formats/rgl-bsdf.md, options).
-BACKSCATTER_DEFAULTS = {"n_theta_i": 21, "resolution": 49}
+#: The defaults that differ for a D from the back-scattering (tables, measured data, Lambert),
+#: per warp (option ``warp``): their structure is not in a D the warp can follow, so the file
+#: holds more incidences and samples, and the ``ndf`` table keeps the back-scattering's D at
+#: its own 1025 nodes (:func:`._rgl_ndf.backscatter_ndf`), fine enough for the half-vector
+#: structure of a table (a table's θh nodes, the measured noise of a film's D) that 128 nodes
+#: smooth. Measured on the real RGL files' netCDF conversions (formats/rgl-bsdf.md, options):
+#: the ``ndf`` at 1025 nodes took a film from 2.4 / 17 % (median / p95) to 1.06 / 10.7 %, a car
+#: paint from 0.87 / 7.0 % to 0.52 / 3.4 %; the lobe warp reads closer with more incidences
+#: and samples and a coarser ``vndf`` table (23 incidences, 52 x 52, vndf 40 x 40: the film
+#: 0.93 / 9.0 %, the flake paint 0.96 / 6.8 %, against 1.06 / 10.7 % and 1.05 / 8.4 % at 21,
+#: 49 x 49, 64 x 64); the level warp of a Lambertian does not (worst error up to 80° 3.7 %
+#: there, 1.8 % at 21, 49 x 49, 64 x 64). An RGB file is at most 1.86x the size of an RGL
+#: database file (1.76x with the lobe warp).
+BACKSCATTER_DEFAULTS = {
+    "level": {"n_theta_i": 21, "resolution": 49, "vndf_resolution": 64, "ndf_resolution": 1025},
+    "lobe": {"n_theta_i": 23, "resolution": 52, "vndf_resolution": 40, "ndf_resolution": 1025},
+    # anisotropic files, either warp: their ndf and sigma hold ndf_phi_resolution rows of
+    # ndf_resolution (1025 would make them 2 MB)
+    "anisotropic": {"n_theta_i": 21, "resolution": 49, "vndf_resolution": 64, "ndf_resolution": 128},
+}
 MAX_RESOLUTION = 4096
+
+
+def _backscatter_text(key: str) -> str:
+    """``"49 (level warp), 52 (lobe warp) in isotropic files, 49 in anisotropic ones"``: the
+    :data:`BACKSCATTER_DEFAULTS` of ``key``."""
+    d = {kind: v[key] for kind, v in BACKSCATTER_DEFAULTS.items()}
+    iso = str(d["level"]) if d["level"] == d["lobe"] else f"{d['level']} (level warp), {d['lobe']} (lobe warp)"
+    return f"{iso} in isotropic files, {d['anisotropic']} in anisotropic ones"
+
 
 NDF_CHOICES = ("auto", "model", "backscatter")
 #: The warp of a file whose D comes from the back-scattering (tables, Lambert): ``level``
@@ -48,20 +70,22 @@ PARAMS = (
     Param("theta_i_deg", "floats", "Incident elevations in degrees, ascending in [0, 90) (default: n_theta_i "
           "values).", units="deg", default=None, minimum=0.0, maximum=90.0),
     Param("n_theta_i", "int", "Number of incident elevations from 0 to theta_i_max_deg, closer together towards "
-          f"grazing (default {DEFAULTS['n_theta_i']}; {BACKSCATTER_DEFAULTS['n_theta_i']} for a D from the "
-          "back-scattering: tables, Lambert).", default=None, minimum=1, maximum=1024),
+          f"grazing (default {DEFAULTS['n_theta_i']}; for a D from the back-scattering: tables, Lambert, "
+          f"{_backscatter_text('n_theta_i')}).", default=None, minimum=1, maximum=1024),
     Param("theta_i_max_deg", "float", f"Largest incident elevation in degrees (default "
           f"{DEFAULTS['theta_i_max_deg']:g}).", units="deg", default=None, minimum=0.0, maximum=90.0,
           exclusive_minimum=True),
     Param("n_phi_i", "int", f"Anisotropic files: incident azimuths over [-180, 180] degrees (default "
           f"{DEFAULTS['n_phi_i']}).", default=None, minimum=3, maximum=1024),
     Param("resolution", "int", f"Stored samples per incident direction, N x N (default {DEFAULTS['resolution']}; "
-          f"{BACKSCATTER_DEFAULTS['resolution']} for a D from the back-scattering).",
+          f"for a D from the back-scattering {_backscatter_text('resolution')}).",
           default=None, minimum=2, maximum=MAX_RESOLUTION),
     Param("vndf_resolution", "int", f"vndf (warp) table per incident direction, n x n (default "
-          f"{DEFAULTS['vndf_resolution']}; at least 3: with 2 every node lies on an edge, where the warp "
+          f"{DEFAULTS['vndf_resolution']}; for a D from the back-scattering "
+          f"{_backscatter_text('vndf_resolution')}; at least 3: with 2 every node lies on an edge, where the warp "
           "vanishes).", default=None, minimum=3, maximum=MAX_RESOLUTION),
-    Param("ndf_resolution", "int", f"ndf and sigma tables along theta (default {DEFAULTS['ndf_resolution']}).",
+    Param("ndf_resolution", "int", f"ndf and sigma tables along theta (default {DEFAULTS['ndf_resolution']}; "
+          f"for a D from the back-scattering {_backscatter_text('ndf_resolution')}).",
           default=None, minimum=2, maximum=MAX_RESOLUTION),
     Param("ndf_phi_resolution", "int", f"Anisotropic files: ndf and sigma tables along phi (default "
           f"{DEFAULTS['ndf_phi_resolution']}).", default=None, minimum=2, maximum=MAX_RESOLUTION),
@@ -131,7 +155,8 @@ def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_p
                   vndf_resolution=None, ndf_resolution=None, ndf_phi_resolution=None, anisotropic=None, ndf="auto",
                   wavelengths_nm=None, description=None, warp="auto", values="auto"):
     out = {"defaulted": frozenset(
-        k for k, v in (("n_theta_i", theta_i_deg is None and n_theta_i is None), ("resolution", resolution is None))
+        k for k, v in (("n_theta_i", theta_i_deg is None and n_theta_i is None), ("resolution", resolution is None),
+                       ("vndf_resolution", vndf_resolution is None), ("ndf_resolution", ndf_resolution is None))
         if v), "theta_i_max": None}
     if theta_i_deg is not None:
         if n_theta_i is not None or theta_i_max_deg is not None:
@@ -185,11 +210,13 @@ def _resolve_options(theta_i_deg=None, n_theta_i=None, theta_i_max_deg=None, n_p
     return out
 
 
-def backscatter_defaults(opts: dict) -> dict:
-    """``opts`` (resolved) with :data:`BACKSCATTER_DEFAULTS` for the options not given."""
-    out = dict(opts)
+def backscatter_defaults(opts: dict, warp: str, anisotropic: bool) -> dict:
+    """``opts`` (resolved) with :data:`BACKSCATTER_DEFAULTS` for the options not given: those of
+    ``warp`` (``level`` or ``lobe``) in an isotropic file, of ``anisotropic`` otherwise."""
+    out, defaults = dict(opts), BACKSCATTER_DEFAULTS["anisotropic" if anisotropic else warp]
     if "n_theta_i" in opts["defaulted"]:
-        out["theta_i"] = theta_i_nodes(BACKSCATTER_DEFAULTS["n_theta_i"], opts["theta_i_max"])
-    if "resolution" in opts["defaulted"]:
-        out["resolution"] = BACKSCATTER_DEFAULTS["resolution"]
+        out["theta_i"] = theta_i_nodes(defaults["n_theta_i"], opts["theta_i_max"])
+    for key in ("resolution", "vndf_resolution", "ndf_resolution"):
+        if key in opts["defaulted"]:
+            out[key] = defaults[key]
     return out

@@ -16,7 +16,7 @@ warp of :func:`_vndf_table`, whichever reproduces the source better: option ``wa
 the nodes, or (option ``values``; for a D from the back-scattering where those node samples
 miss: :data:`FIT_WHEN_SCORE`) values solved by least squares against the source between the
 nodes too (:mod:`._rgl_fit`); a D from the back-scattering also gets more θi nodes and samples
-by default (:data:`._rgl_options.BACKSCATTER_DEFAULTS`); ``luminance`` is the luminance of
+and a finer ``ndf`` table by default, per warp (:data:`._rgl_options.BACKSCATTER_DEFAULTS`); ``luminance`` is the luminance of
 f·cosθo per unit area of the unit square, so that Mitsuba samples ωo in proportion to f·cosθo.
 """
 
@@ -508,8 +508,6 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
     # files (option warp; auto: the one that reproduces the source better), the smooth spread
     # or the lobe warp in anisotropic ones
     broad = source == "backscatter" and not getattr(ndf, "no_backscatter", False)
-    if broad:
-        opts = backscatter_defaults(opts)
     if not broad:
         kinds = ("model",)
     else:
@@ -523,7 +521,8 @@ def prepare_rgl(brdf, grid=None, **options) -> RGLPayload:
     for k in kinds:
         if before is not None:
             counts[:] = before
-        candidates.append(_fields(brdf, opts, lam, ndf, source, anisotropic, k))
+        candidates.append(_fields(brdf, backscatter_defaults(opts, k, anisotropic) if broad else opts, lam, ndf, source,
+                                  anisotropic, k))
         tallies.append(list(counts) if before is not None else None)
     mode = _fit_mode(opts, broad, anisotropic, 3 if lam is None else lam.size)
     if len(candidates) == 1 and mode is None:
@@ -568,8 +567,8 @@ FIT_WHEN_SCORE = 0.2
 #: queries are few and the format is weakest: fitted values are kept only if no grazing band's
 #: score rises by more than this factor. Measured (fit / node samples, the four bands): the
 #: real car paints 0.59-0.99, the flake paint 0.38-1.17, a rough table 0.81-1.16; a Lambertian
-#: at 16 x 16 samples, whose fit reads 2.4x closer up to 80°, 2.9x and 4.8x at grazing ωi
-#: (p95 at θi 85-89° 2.2 → 21.5 %; kept with node samples).
+#: at 16 x 16 samples with the lobe warp, whose fit reads 2.4x closer up to 80°, 2.9x and 4.8x
+#: at grazing ωi (p95 at θi 85-89° 2.4 → 22 %; kept with node samples).
 FIT_GRAZING_TOLERANCE = 1.2
 
 
