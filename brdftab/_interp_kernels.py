@@ -123,15 +123,17 @@ CHUNK = 1 << 16
 
 
 def contiguous_pairs(wi, wo):
-    """``(rows, wi, wo)`` covering all pairs with C-contiguous float64 ``(k, 3)`` arrays: the
-    arrays themselves when they are, else copies of bounded chunks."""
+    """``(rows, wi, wo)`` covering all pairs with C-contiguous, writable float64 ``(k, 3)``
+    arrays: the arrays themselves when they are, else copies of bounded chunks. (Writable: numba
+    compiles a kernel anew for read-only arguments, a type of their own; the table kernel takes
+    about 30 s.)"""
     m = wi.shape[0]
-    if wi.flags.c_contiguous and wo.flags.c_contiguous and wi.dtype == np.float64 and wo.dtype == np.float64:
+    if all(a.flags.c_contiguous and a.flags.writeable and a.dtype == np.float64 for a in (wi, wo)):
         yield slice(0, m), wi, wo
         return
     for s in range(0, m, CHUNK):
         rows = slice(s, min(m, s + CHUNK))
-        yield rows, np.ascontiguousarray(wi[rows], np.float64), np.ascontiguousarray(wo[rows], np.float64)
+        yield rows, np.array(wi[rows], np.float64, order="C"), np.array(wo[rows], np.float64, order="C")
 
 
 @intrinsic
@@ -686,8 +688,10 @@ class TablePlan:
         its counts summed."""
         total = np.zeros(4, np.int64)
         for rows, a, b in contiguous_pairs(wi, wo):
+            # (offset given, as WindowPlan gives it: one compiled signature, not two)
             total += table_eval(a, b, check, self.kind, self.fold, self.iso, self.ax_i, self.ax_f, self.xp,
-                                self.slope, self.vals, self.valid, self.vmode, OUTSIDE[mode], out[rows], flags[rows])
+                                self.slope, self.vals, self.valid, self.vmode, OUTSIDE[mode], out[rows], flags[rows],
+                                0)
         return tuple(int(x) for x in total)
 
 
@@ -728,7 +732,7 @@ class WindowPlan:
 
     def run(self, wi, wo, check, mode, out, flags, vals, valid, first_row):
         total = np.zeros(4, np.int64)
-        offset = first_row * self.row_nodes
+        offset = int(first_row * self.row_nodes)
         for rows, a, b in contiguous_pairs(wi, wo):
             total += table_eval(a, b, check, self.kind, self.fold, self.iso, self.ax_i, self.ax_f, self.xp,
                                 self.slope, vals, valid, NODE_MASK, OUTSIDE[mode], out[rows], flags[rows], offset)

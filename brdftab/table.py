@@ -1020,9 +1020,11 @@ class OutOfCore:
 
     @staticmethod
     def _read(f, lo, hi, shape, dtype, item):
-        """Rows ``lo:hi`` of a scratch file, read-only, mapped (:func:`_map_rows`): an
-        evaluation window's interpolation touches only the pages its queries' corners are on."""
-        return _map_rows(f, lo, hi, shape, dtype)
+        """Rows ``lo:hi`` of a scratch file, mapped (:func:`_map_rows`): an evaluation window's
+        interpolation touches only the pages its queries' corners are on. Copy-on-write rather
+        than read-only, though nothing writes them: the compiled kernel then takes them as it
+        takes a table in memory (numba compiles anew for read-only arrays, about 30 s)."""
+        return _map_rows(f, lo, hi, shape, dtype, writable=True)
 
     def _rows(self, lo, hi):
         """(values, valid nodes) of rows ``lo:hi`` of the first axis."""
