@@ -1565,7 +1565,8 @@ def test_auto_keeps_node_samples_where_the_fit_reads_farther_off_at_grazing_dire
         fields = rgl.prepare_rgl(model, resolution=16, values=values, warp="lobe").fields
         assert json.loads(bytes(fields["provenance"]).decode())["values"] == ("nodes" if values == "auto" else "fit")
         p95[values] = float(np.percentile(np.abs(rgl.RGLBSDF(fields).eval_cos(wi, wo) / ref - 1), 95))
-    print(f"Lambert at 16 x 16, lobe warp, θi 85-89°: p95 node samples {100 * p95['auto']:.1f} %, fit {100 * p95['fit']:.1f} %")
+    print(f"Lambert at 16 x 16, lobe warp, θi 85-89°: p95 node samples {100 * p95['auto']:.1f} %, "
+          f"fit {100 * p95['fit']:.1f} %")
     assert p95["fit"] > 5.0 * p95["auto"]
 
 

@@ -209,6 +209,35 @@ def test_out_of_core_interpolation_equals_the_loaded_table(tmp_path, monkeypatch
     t.close()
 
 
+def test_the_table_kernel_compiles_one_signature_per_value_type(tmp_path, monkeypatch):
+    """In memory and out of core, with read-only directions too, the table kernel is called with
+    the same argument types: numba compiles it (about 30 s) once per value type, not again for
+    read-only windows or pairs or an omitted offset (there were five signatures)."""
+    from numba.core import types
+
+    from brdftab._interp_kernels import table_eval
+
+    path = _run(tmp_path, monkeypatch, None, dtype="float64").written[0]
+    rng = np.random.default_rng(4)
+    wi = brdftab.geometry.sph_to_vec(np.arccos(rng.uniform(0.02, 1, 500)), rng.uniform(0, 6.3, 500))
+    wo = brdftab.geometry.sph_to_vec(np.arccos(rng.uniform(0.02, 1, 500)), rng.uniform(0, 6.3, 500))
+    wi.flags.writeable = wo.flags.writeable = False
+    in_memory = brdftab.open(path)
+    want = in_memory.eval(wi, wo)
+    monkeypatch.setenv("BRDFTAB_MEMORY", "1M")
+    t = brdftab.open(path)
+    assert t._slab_mode()
+    np.testing.assert_allclose(t.eval(wi, wo), want, rtol=1e-12, atol=0)
+    t.close()
+    sigs = table_eval.compiled().signatures
+    assert sigs
+    for sig in sigs:  # (any test of this process may have added its own: none may differ so)
+        assert not any(isinstance(a, types.Omitted) or (isinstance(a, types.Array) and not a.mutable)
+                       for a in sig), sig
+    values = {sig[10].dtype for sig in sigs}
+    assert len(sigs) == len(values) <= 2
+
+
 def test_the_memory_option_is_checked_in_one_line(tmp_path):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     r = subprocess.run([sys.executable, "-m", "brdftab", "validate", str(tmp_path / "x.nc"), "--memory", "lots"],

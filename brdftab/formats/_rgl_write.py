@@ -16,8 +16,9 @@ warp of :func:`_vndf_table`, whichever reproduces the source better: option ``wa
 the nodes, or (option ``values``; for a D from the back-scattering where those node samples
 miss: :data:`FIT_WHEN_SCORE`) values solved by least squares against the source between the
 nodes too (:mod:`._rgl_fit`); a D from the back-scattering also gets more θi nodes and samples
-and a finer ``ndf`` table by default, per warp (:data:`._rgl_options.BACKSCATTER_DEFAULTS`); ``luminance`` is the luminance of
-f·cosθo per unit area of the unit square, so that Mitsuba samples ωo in proportion to f·cosθo.
+and a finer ``ndf`` table by default, per warp (:data:`._rgl_options.BACKSCATTER_DEFAULTS`);
+``luminance`` is the luminance of f·cosθo per unit area of the unit square, so that Mitsuba
+samples ωo in proportion to f·cosθo.
 """
 
 from __future__ import annotations
