@@ -142,9 +142,9 @@ def test_checks_say_what_the_samples_cover_and_pass_nothing_over_no_pairs():
 
 def test_extrapolation_reported_for_a_bsdf_is_the_written_files(tmp_path):
     """An RGL file of a scattered table: the writer builds two candidate warps and evaluates
-    the source again to choose (formats/rgl-bsdf.md, step 3), and again to fit the values of
-    this rough table (step 4); the extrapolation convert reports counts the nodes of the file
-    written only, as when its warp is asked for."""
+    the source again to choose (formats/rgl-bsdf.md, step 3), to place the lobe warp's samples
+    (its steepness share) and to fit the values (step 4, asked for); the extrapolation convert
+    reports counts the nodes of the file written only, as when its warp is asked for."""
     import json
 
     from brdftab.convert import convert
@@ -155,9 +155,19 @@ def test_extrapolation_reported_for_a_bsdf_is_the_written_files(tmp_path):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             result = convert(tmp_path / "s.nc", tmp_path / f"s-{warp}.bsdf",
-                             options={"warp": warp, "n_theta_i": 9, "resolution": 24},  # small: fast
+                             options={"warp": warp, "values": "fit", "n_theta_i": 9, "resolution": 24},  # small: fast
                              allow_invalid=True, progress=False)
         got[warp] = result.extrapolated
         warp = json.loads(bytes(brdftab.open(tmp_path / f"s-{warp}.bsdf").fields["provenance"]).decode())["warp"]
     assert got["auto"] == got[warp] and got["auto"]["outside"] > 0
+    # the lobe warp's steepness queries (an even grid of half vectors) are not counted
+    from brdftab.formats._rgl_warp import bilinear
+    from brdftab.formats._rgl_write import _steepness
+
+    table = brdftab.open(tmp_path / "s.nc")
+    before = list(table.extrapolation)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # (the table's own warning about its extrapolated queries)
+        _steepness(table, None, np.radians([0.0, 40.0, 80.0]), 16, bilinear(np.ones((2, 16), np.float32)))
+    assert table.extrapolation == before and before[0] == 0
     assert json.loads(bytes(brdftab.open(tmp_path / "s-auto.bsdf").fields["provenance"]).decode())["values"] == "fit"
