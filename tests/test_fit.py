@@ -267,12 +267,16 @@ def test_a_grid_without_a_spec_form_is_refused_before_the_search(table_file, tmp
 
 
 def test_the_robust_loss_keeps_negative_noise_samples_from_pulling_the_fit(tmp_path):
-    """200 negative samples in a measured-like file: the log metric floors them (residuals of
+    """300 negative samples in a measured-like file: the log metric floors them (residuals of
     several units); soft_l1 (the default) still gives the Lambert albedo the file was made with
-    to 3 %, the plain least-squares loss lets them pull it 10 % or more low."""
+    to 3 %, the plain least-squares loss lets them pull it 10 % or more low (measured 1.9 % and
+    -16 %). The file has the level warp: the fit weights the file's sample nodes, and this
+    source is not reciprocal (tests/_measured.py), so where the nodes lie moves the albedo of
+    a reciprocal fit; the lobe warp puts more of them at grazing exits, where the asymmetry
+    raises f, and the albedo comes out 7 % high with either loss."""
     from _measured import measured_bsdf
 
-    measured_bsdf(tmp_path / "m.bsdf", negatives=200)
+    measured_bsdf(tmp_path / "m.bsdf", negatives=300, warp="level")
     table = brdftab.open(tmp_path / "m.bsdf")
     start = {"name": "sum", "terms": [{"name": "lambert", "albedo": [0.5, 0.5, 0.5]},
                                       {"name": "microfacet", "alpha": 0.5, "fresnel": "schlick",
