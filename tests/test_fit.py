@@ -272,8 +272,8 @@ def test_the_robust_loss_keeps_negative_noise_samples_from_pulling_the_fit(tmp_p
     to 3 %, the plain least-squares loss lets them pull it 10 % or more low (measured 1.9 % and
     -16 %). The file has the level warp: the fit weights the file's sample nodes, and this
     source is not reciprocal (tests/_measured.py), so where the nodes lie moves the albedo of
-    a reciprocal fit; the lobe warp puts more of them at grazing exits, where the asymmetry
-    raises f, and the albedo comes out 7 % high with either loss."""
+    a reciprocal fit; the lobe warp's steepness share puts more of them at grazing exits,
+    where the asymmetry raises f, and soft_l1's albedo comes out 7 % high there."""
     from _measured import measured_bsdf
 
     measured_bsdf(tmp_path / "m.bsdf", negatives=300, warp="level")

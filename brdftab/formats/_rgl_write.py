@@ -75,6 +75,7 @@ WARP_ROWS_FLOOR = 0.1
 #: level incidence :data:`LEVEL_TWIN` rad above it, with the grazing warp
 #: (:func:`_level_incidences`).
 LEVEL_MAX_THETA_I = np.radians(63.5)
+LEVEL_TWIN = 1e-6
 #: The lobe warp of a D from the back-scattering in isotropic files: a share STEEP_SHARE of
 #: every row's columns, and a share STEEP_ROWS of that part's marginal over the rows, follow
 #: how fast the stored values, f·cosθo/D̂, change at that incidence, along the row and between
@@ -85,17 +86,21 @@ LEVEL_MAX_THETA_I = np.radians(63.5)
 #: samples, and the stored values change there by decades from one sample to the next: this
 #: part puts samples on it. The log is taken of |f|·cosθo plus STEEP_FLOOR times its largest
 #: value at the incidence (values below that are not judged as relative errors), evaluated on
-#: a grid STEEP_SUPERSAMPLE times finer than the ``vndf`` table (at most STEEP_MAX_NODES a
-#: side) and averaged over each node's cell. The share was chosen on the 22 real files
-#: (formats/rgl-bsdf.md, "Tables"; by a script): at 0.2 convert's check refused cg_sunflower
-#: (p95 10.2 %, 9.3 % at 0.3), at 0.5 the flake paint's median error at uniform pairs rose to
-#: 1.06 % (0.93 % at 0.3).
+#: a grid STEEP_SUPERSAMPLE times finer than the ``vndf`` table and averaged over each node's
+#: cell; the change between rows has a floor of WARP_ROWS_FLOOR times the change along them,
+#: as the even spread's has (at normal incidence it is rounding noise). The share was chosen
+#: on the 22 real files (formats/rgl-bsdf.md, "Tables"; by a script): at 0.2 convert's check
+#: refused cg_sunflower (p95 10.2 %, 9.3 % at 0.3), at 0.5 the flake paint's median error at
+#: uniform pairs rose to 1.06 % (0.93 % at 0.3).
 STEEP_SHARE = 0.3
+#: (the part of that share's marginal over the rows that follows the change between rows)
 STEEP_ROWS = 0.5
+#: (the floor ε of the log, relative to the largest |f|·cosθo at the incidence)
 STEEP_FLOOR = 1e-4
+#: (how many times finer than the ``vndf`` table the steepness is evaluated, and the largest
+#: grid, in nodes a side, that the factor is lowered to keep within where it can: at least 1)
 STEEP_SUPERSAMPLE = 4
 STEEP_MAX_NODES = 257
-LEVEL_TWIN = 1e-6
 #: Level warp: the share of every row per unit of cosθo in its band (κ); the band has full
 #: weight below LEVEL_TOP·cosθi and fades to 0 at min(LEVEL_FADE, LEVEL_FADE_REL·cosθi)
 #: above (below cosθi, where every row starts, so that every row crosses the band once,
@@ -279,14 +284,24 @@ def _steepness(brdf, lam, th_i, nv, ndf_interp):
     the largest over channels of |∂ log((|f|·cosθo + ε)/D̂)/∂x| (along the rows: θm) and the row
     means of |∂ log(...)/∂y| (between rows: φm), with ε = :data:`STEEP_FLOOR` times the slice's
     largest |f|·cosθo, on a grid :data:`STEEP_SUPERSAMPLE` times finer than the table, averaged
-    over each node's cell (fewer times for a fine table: the grid has at most
-    :data:`STEEP_MAX_NODES` nodes a side). f·cosθo is 0 beyond the horizon, so the horizon counts
-    as a step. A slice where the source is 0 or not finite everywhere gets even densities. The
-    queries are not counted among a scattered table's extrapolated ones (those of the file
-    written)."""
-    from scipy.ndimage import uniform_filter
+    over each node's cell by the trapezoid rule (a smaller factor for a fine table, down to 1,
+    to keep the grid within :data:`STEEP_MAX_NODES` nodes a side where it can). The row means
+    get a floor of :data:`WARP_ROWS_FLOOR` times the mean change along the rows: at normal
+    incidence the change between rows is rounding noise, which would otherwise set the row
+    density (as :func:`_broad_spread` says, the readers blend the first two θi slices). f·cosθo
+    is 0 beyond the horizon, so the horizon counts as a step. A slice where the source is 0
+    everywhere, or not finite somewhere, gets even densities. The queries are not counted
+    among a scattered table's extrapolated ones (those of the file written)."""
+    from scipy.ndimage import correlate1d
 
     ss = max(1, min(STEEP_SUPERSAMPLE, (STEEP_MAX_NODES - 1) // (nv - 1)))
+    # a node's cell average: the trapezoid rule over the ss + 1 fine nodes around it
+    tent = np.ones(2 * (ss // 2) + 1) if ss % 2 == 0 else np.ones(ss + 2)
+    tent[0] = tent[-1] = 0.5
+    if ss % 2:  # odd: the cell ends half-way along a fine step
+        tent[0] = tent[-1] = 0.125
+        tent[1] = tent[-2] = 0.875
+    tent /= tent.sum()
     n = (nv - 1) * ss + 1
     counts = getattr(brdf, "extrapolation", None)
     before = list(counts) if isinstance(counts, list) else None
@@ -317,9 +332,10 @@ def _steepness(brdf, lam, th_i, nv, ndf_interp):
         gx = np.where(live, np.abs(gx).max(axis=-1), 0.0)
         gy = np.where(live, np.abs(gy).max(axis=-1), 0.0)
         if ss > 1:
-            gx = uniform_filter(gx, ss + 1, mode="nearest")[::ss, ::ss]
-            gy = uniform_filter(gy, ss + 1, mode="nearest")[::ss, ::ss]
-        cx, cy = gx, gy.mean(axis=1, keepdims=True)
+            gx, gy = (correlate1d(correlate1d(a, tent, axis=0, mode="nearest"), tent, axis=1,
+                                  mode="nearest")[::ss, ::ss] for a in (gx, gy))
+        cx = np.maximum(gx, 0.0)
+        cy = np.maximum(gy, 0.0).mean(axis=1, keepdims=True) + WARP_ROWS_FLOOR * cx.mean()
         if cx.mean() > 0:
             cols[0, a] = cx / cx.mean()
         if cy.mean() > 0:
@@ -649,8 +665,9 @@ FIT_WHEN_SCORE = 0.2
 #: queries are few and the format is weakest: fitted values are kept only if no grazing band's
 #: score rises by more than this factor. Measured (fit / node samples, the four bands): the
 #: real car paints 0.59-0.99, the flake paint 0.38-1.17, a rough table 0.81-1.16; a Lambertian
-#: at 16 x 16 samples with the lobe warp, whose fit reads 2.4x closer up to 80°, 2.9x and 4.8x
-#: at grazing ωi (p95 at θi 85-89° 2.4 → 22 %; kept with node samples).
+#: at 16 x 16 samples with the lobe warp without its steepness share, whose fit reads 2.4x
+#: closer up to 80°, 2.9x and 4.8x at grazing ωi (p95 at θi 85-89° 2.4 → 22 %; kept with node
+#: samples; with the share the fit reads closer there too, 4.1 → 2.6 %, and is kept).
 FIT_GRAZING_TOLERANCE = 1.2
 
 
