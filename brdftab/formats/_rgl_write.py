@@ -90,8 +90,8 @@ LEVEL_TWIN = 1e-6
 #: cell; the change between rows has a floor of WARP_ROWS_FLOOR times the change along them,
 #: as the even spread's has (at normal incidence it is rounding noise). The share was chosen
 #: on the 22 real files (formats/rgl-bsdf.md, "Tables"; by a script): at 0.2 convert's check
-#: refused cg_sunflower (p95 10.2 %, 9.3 % at 0.3), at 0.5 the flake paint's median error at
-#: uniform pairs rose to 1.06 % (0.93 % at 0.3).
+#: refused cg_sunflower (p95 10.3 %, 9.4 % at 0.3), at 0.5 the flake paint's median error at
+#: uniform pairs rose to 1.06 % (0.95 % at 0.3).
 STEEP_SHARE = 0.3
 #: (the part of that share's marginal over the rows that follows the change between rows)
 STEEP_ROWS = 0.5
