@@ -331,11 +331,11 @@ def _steepness(brdf, lam, th_i, nv, ndf_interp):
         live = ok.reshape(n, n)
         gx = np.where(live, np.abs(gx).max(axis=-1), 0.0)
         gy = np.where(live, np.abs(gy).max(axis=-1), 0.0)
-        if ss > 1:
-            gx, gy = (correlate1d(correlate1d(a, tent, axis=0, mode="nearest"), tent, axis=1,
-                                  mode="nearest")[::ss, ::ss] for a in (gx, gy))
-        cx = np.maximum(gx, 0.0)
-        cy = np.maximum(gy, 0.0).mean(axis=1, keepdims=True) + WARP_ROWS_FLOOR * cx.mean()
+        if ss > 1:  # (non-negative weights of non-negative values: no rounding below 0)
+            gx, gy = (correlate1d(correlate1d(grad, tent, axis=0, mode="nearest"), tent, axis=1,
+                                  mode="nearest")[::ss, ::ss] for grad in (gx, gy))
+        cx = gx
+        cy = gy.mean(axis=1, keepdims=True) + WARP_ROWS_FLOOR * cx.mean()
         if cx.mean() > 0:
             cols[0, a] = cx / cx.mean()
         if cy.mean() > 0:
