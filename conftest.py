@@ -43,7 +43,8 @@ def pytest_configure(config):
     parts = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
     if str(ROOT) not in parts:
         os.environ["PYTHONPATH"] = os.pathsep.join([str(ROOT), *parts])
-    if hasattr(config, "workerinput") or not (config.getoption("numprocesses", None) or 0):
+    if (hasattr(config, "workerinput") or not (config.getoption("numprocesses", None) or 0)
+            or config.option.collectonly):
         return
     stamp = _warm_stamp()
     if stamp.exists():
@@ -52,7 +53,7 @@ def pytest_configure(config):
     with tempfile.TemporaryDirectory(prefix="brdftab-warm-") as folder:
         procs = [subprocess.Popen([sys.executable, str(ROOT / "tests" / "_warm.py"), part, os.path.join(folder, part)],
                                   cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-                 for part in ("f64", "f32")]
+                 for part in ("f64", "f32", "rgl")]
         errors = [p.communicate()[1].strip() for p in procs]
     if all(p.returncode == 0 for p in procs):
         stamp.parent.mkdir(parents=True, exist_ok=True)
