@@ -21,6 +21,7 @@ them like any other file, so a composition compiles once per machine, not once p
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import importlib.util
@@ -41,6 +42,86 @@ OPTIONS = dict(cache=True, error_model="numpy", fastmath=False, nogil=True)
 def prange(*args):
     """numba's parallel range inside kernels; the plain ``range`` when called from Python."""
     return range(*args)
+
+
+def safe_cache():
+    """Make numba's on-disk cache safe for processes that compile the same function at once
+    (installed once, when brdftab first compiles; a no-op without ``fcntl``, i.e. off POSIX).
+
+    numba keeps one index per function that maps each signature to a data file named by the
+    first free number, and rewrites it without a lock: two processes that compile two
+    signatures of one function at once can both take ``.2.nbc``, and the index then names one
+    signature's machine code for the other's arguments (seen in a fresh checkout's test run:
+    the checks' ``_stats_pass`` called with float64 rows ran code compiled for float32 ones,
+    "can't unbox array from PyObject"). Here a lock file per function (beside its index) is
+    held exclusively while an entry is saved and shared while one is loaded, and exclusively
+    around a compilation: a second process that needs the function waits for the first and
+    then loads its machine code instead of compiling it again (the table kernel takes about
+    26 s). Compilations nest (a kernel compiles the device functions it calls, a DAG), and
+    numba's own compiler lock is taken first, so threads of a process queue there."""
+    if _SAFE_CACHE:
+        return
+    with _RESOLVING:
+        if _SAFE_CACHE:
+            return
+        _SAFE_CACHE.append(True)
+        try:
+            import fcntl
+        except ImportError:  # pragma: no cover - not POSIX
+            return
+        from numba.core import caching
+        from numba.core.compiler_lock import global_compiler_lock
+        from numba.core.dispatcher import Dispatcher
+
+        held: dict = {}  # lock files this process holds, with their depth (re-entrant within a process)
+
+        @contextlib.contextmanager
+        def locked(path: str, exclusive: bool = True):
+            if path in held:
+                held[path] += 1
+                try:
+                    yield
+                finally:
+                    held[path] -= 1
+                return
+            try:
+                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
+            except OSError:  # a cache folder this process cannot write: numba's own behaviour
+                yield
+                return
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+                held[path] = 1
+                try:
+                    yield
+                finally:
+                    del held[path]
+            finally:
+                os.close(fd)  # closing the descriptor releases the lock
+
+        save, load, compile_ = caching.IndexDataCacheFile.save, caching.IndexDataCacheFile.load, Dispatcher.compile
+
+        def locked_save(self, key, data):
+            with locked(self._index_path + ".lock"):
+                return save(self, key, data)
+
+        def locked_load(self, key):
+            with locked(self._index_path + ".lock", exclusive=False):
+                return load(self, key)
+
+        def locked_compile(self, sig):
+            index = getattr(getattr(getattr(self, "_cache", None), "_cache_file", None), "_index_path", None)
+            if index is None:  # not cached on disk
+                return compile_(self, sig)
+            with global_compiler_lock, locked(index + ".compile-lock"):
+                return compile_(self, sig)
+
+        caching.IndexDataCacheFile.save = locked_save
+        caching.IndexDataCacheFile.load = locked_load
+        Dispatcher.compile = locked_compile
+
+
+_SAFE_CACHE: list = []
 
 
 #: Held while a function's globals are made numba's (re-entrant: a kernel's device functions
@@ -66,6 +147,8 @@ class _Lazy:
             with _RESOLVING:  # threads calling a kernel first at once (parallel_rows) wait here
                 if self._compiled is None:
                     import numba
+
+                    safe_cache()
 
                     # numba reads the globals when it compiles (at the first call): the device
                     # functions must be numba's before any thread can call the dispatcher
@@ -214,6 +297,7 @@ def generated_module(prefix: str, source: str):
     """
     import numba
 
+    safe_cache()
     digest = hashlib.sha256(f"{numba.__version__}\n{sys.version}\n{source}".encode()).hexdigest()[:20]
     name = f"_brdftab_{prefix}_{digest}"
     if name in _MODULES:

@@ -660,3 +660,78 @@ def test_undeclared_nan_samples_read_the_same_in_both_evaluations():
     nan = np.isnan(compiled)
     assert nan.any() and np.array_equal(nan, np.isnan(reference))
     assert np.allclose(compiled[~nan], reference[~nan], rtol=RTOL, atol=0.0)
+
+
+# --------------------------------------------------------------------------------------------
+# numba's on-disk cache shared by processes that compile at once (brdftab._jit.safe_cache)
+
+_RACE_MODULE = '''
+from brdftab._jit import kernel
+
+
+@kernel
+def total(a):
+    s = a[0] * 0
+    for i in range(a.shape[0]):
+        s += a[i]
+    return s
+'''
+
+_RACER = '''
+import json, sys, time
+import numpy as np
+sys.path.insert(0, sys.argv[1])
+import racemod
+start, dtypes = float(sys.argv[2]), sys.argv[3].split(",")
+while time.time() < start:  # every process calls at the same moment, its imports done
+    time.sleep(0.001)
+sums = [float(np.real(racemod.total(np.arange(5).astype(d)))) for d in dtypes]
+stats = racemod.total.compiled().stats
+print(json.dumps({"sums": sums, "misses": sum(stats.cache_misses.values()), "hits": sum(stats.cache_hits.values())}))
+'''
+
+_DTYPES = ["int32", "int64", "uint32", "uint64", "float32", "float64", "complex64", "complex128"]
+
+
+def _race(tmp_path, groups):
+    """Start one process per entry of ``groups`` (a list of dtype lists), all calling the kernel
+    at the same moment with a fresh numba cache; their JSON reports."""
+    import json
+    import time
+
+    (tmp_path / "racemod.py").write_text(_RACE_MODULE)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    start = time.time() + 3.0
+    procs = [subprocess.Popen([sys.executable, "-c", _RACER, str(tmp_path), str(start), ",".join(g)], env=env,
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for g in groups]
+    out = []
+    for p in procs:
+        stdout, stderr = p.communicate(timeout=300)
+        assert p.returncode == 0, stderr[-1500:]
+        out.append(json.loads(stdout.strip().splitlines()[-1]))
+    return out
+
+
+def test_processes_compiling_one_function_at_once_leave_a_consistent_cache(tmp_path):
+    """Eight processes compile eight signatures of one kernel at the same moment into one
+    fresh cache. numba names each signature's data file by the first free number in an index it
+    rewrites without a lock: without brdftab's lock files two processes took the same file,
+    and a later process loaded one signature's machine code for another's arguments ("can't
+    unbox array") or missed entries. Without the lock files this test failed in at least two of
+    five runs here, and a twelve-signature script in two of three: the race is narrow, so a pass
+    proves less than a failure. Here a later process finds all eight signatures in the cache,
+    and each gives the right sum."""
+    for report in _race(tmp_path, [[d] for d in _DTYPES]):
+        assert report["sums"] == [10.0]
+    (after,) = _race(tmp_path, [_DTYPES])
+    assert after["sums"] == [10.0] * len(_DTYPES)
+    assert after["misses"] == 0 and after["hits"] == len(_DTYPES), after
+
+
+def test_a_process_waits_for_another_compiling_the_same_kernel_and_loads_it(tmp_path):
+    """Three processes need one signature at once: one compiles it, the other two wait for its
+    lock and load the machine code it saved (cache hits, no second compilation)."""
+    reports = _race(tmp_path, [["float64"]] * 3)
+    assert all(r["sums"] == [10.0] for r in reports)
+    assert sorted(r["misses"] for r in reports) == [0, 0, 1], reports
+    assert sorted(r["hits"] for r in reports) == [0, 1, 1], reports
