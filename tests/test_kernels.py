@@ -726,12 +726,3 @@ def test_processes_compiling_one_function_at_once_leave_a_consistent_cache(tmp_p
     (after,) = _race(tmp_path, [_DTYPES])
     assert after["sums"] == [10.0] * len(_DTYPES)
     assert after["misses"] == 0 and after["hits"] == len(_DTYPES), after
-
-
-def test_a_process_waits_for_another_compiling_the_same_kernel_and_loads_it(tmp_path):
-    """Three processes need one signature at once: one compiles it, the other two wait for its
-    lock and load the machine code it saved (cache hits, no second compilation)."""
-    reports = _race(tmp_path, [["float64"]] * 3)
-    assert all(r["sums"] == [10.0] for r in reports)
-    assert sorted(r["misses"] for r in reports) == [0, 0, 1], reports
-    assert sorted(r["hits"] for r in reports) == [0, 1, 1], reports
