@@ -53,10 +53,10 @@ def safe_cache():
     signatures of one function at once can both take ``.2.nbc``, and the index then names one
     signature's machine code for the other's arguments (seen in a fresh checkout's test run:
     151 tests failed in the checks' ``_stats_pass`` with "can't unbox array from PyObject"). Here a lock file per function (beside its index) is
-    held exclusively while an entry is saved and shared while one is loaded. (A lock around
-    each compilation as well, so that a second process waits and loads the first one's code,
-    made the test suite's ``.ci/run`` slower, 743 s against 603 s, for reasons not found in
-    the time there was: not kept.)"""
+    held exclusively while an entry is saved and shared while one is loaded (where the file
+    system has no ``flock``, numba's unlocked behaviour). A lock around each compilation as
+    well, so that a second process would wait and load the first one's code, was tried and
+    not kept (``.ci/run`` was not faster with it; cause not investigated)."""
     if _SAFE_CACHE:
         return
     with _RESOLVING:
@@ -80,13 +80,20 @@ def safe_cache():
                 finally:
                     held[path] -= 1
                 return
+            fd = None
             try:
-                fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
-            except OSError:  # a cache folder this process cannot write: numba's own behaviour
+                fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o666)  # flock needs no write access
+                fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
+            except OSError:
+                # a cache folder this process cannot write, or a file system without flock
+                # (some NFS and Lustre mounts): numba's own, unlocked behaviour
+                if fd is not None:
+                    os.close(fd)
+                fd = None
+            if fd is None:
                 yield
                 return
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX if exclusive else fcntl.LOCK_SH)
                 held[path] = 1
                 try:
                     yield

@@ -9,10 +9,10 @@ suite with the kernels on disk took 477 s. Here each kernel is compiled once, by
 that need it, in three processes at a time that share as few kernels as they can.
 
 Run as ``python tests/_warm.py PART FOLDER`` from the checkout (``python -m brdftab`` imports
-the brdftab of its working folder first). PART is ``f64`` (a float64 table tabulated and
-validated: the table kernel for float64 values, the checks), ``f32`` (a float32 table
-evaluated, then resampled: the table kernel for float32 values, ``convert``'s checks) or
-``rgl`` (a model tabulated into an RGL ``.bsdf`` file and validated: the RGL writer and reader).
+the brdftab of its working folder first). PART is ``f64`` (a float64 table tabulated, with its
+checks, then resampled by ``convert``: the table kernel for float64 values), ``f32`` (a float32
+table evaluated, then validated: the table kernel for float32 values) or ``rgl`` (a model
+tabulated into an RGL ``.bsdf`` file and validated: the RGL writer and reader).
 """
 
 from __future__ import annotations
@@ -41,9 +41,9 @@ path = "{output}"
 
 COARSE = '{type = "rusinkiewicz", n_theta_h = 8, n_theta_d = 8, n_phi_d = 16}'
 
-#: A float32 table made and evaluated without a check: the first kernel this process compiles
-#: is the table kernel for float32 values (the checks of ``tabulate`` evaluate the float64 table
-#: in memory, which the f64 part compiles at the same time).
+#: A float32 table made and evaluated without a check, so that this process compiles the table
+#: kernel for float32 values and not the float64 one (the checks of ``tabulate`` evaluate the
+#: float64 table in memory, which the f64 part compiles at the same time).
 FLOAT32 = """\
 import sys, numpy as np, brdftab
 from brdftab import models

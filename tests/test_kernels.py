@@ -683,6 +683,7 @@ import numpy as np
 sys.path.insert(0, sys.argv[1])
 import racemod
 start, dtypes = float(sys.argv[2]), sys.argv[3].split(",")
+racemod.total.compiled()  # numba imported and brdftab's cache locks installed before the start
 while time.time() < start:  # every process calls at the same moment, its imports done
     time.sleep(0.001)
 sums = [float(np.real(racemod.total(np.arange(5).astype(d)))) for d in dtypes]

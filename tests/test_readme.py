@@ -69,7 +69,7 @@ def test_the_readme_has_commands_and_code():
 def test_every_shell_command_runs_as_printed(folder):
     bindir = Path(sys.executable).parent
     env = {"PATH": f"{bindir}:/usr/bin:/bin", "HOME": str(folder), "LANG": "C.UTF-8"}
-    if os.environ.get("PYTHONPATH"):  # the package under test, when it is not the installed one
+    if os.environ.get("PYTHONPATH"):  # the package under test: conftest.py puts the checkout first
         env["PYTHONPATH"] = os.environ["PYTHONPATH"]
     # the models' compiled kernels from the user's cache folder, as a reader's second command
     # finds them (HOME is the scratch folder): compiling them again is not what is tested here
