@@ -52,9 +52,10 @@ def safe_cache():
     first free number, and rewrites it without a lock: two processes that compile two
     signatures of one function at once can both take ``.2.nbc``, and the index then names one
     signature's machine code for the other's arguments (seen in a fresh checkout's test run:
-    151 tests failed in the checks' ``_stats_pass`` with "can't unbox array from PyObject"). Here a lock file per function (beside its index) is
-    held exclusively while an entry is saved and shared while one is loaded (where the file
-    system has no ``flock``, numba's unlocked behaviour). A lock around each compilation as
+    151 tests failed in the checks' ``_stats_pass`` with "can't unbox array from PyObject").
+    Here a lock file per function (beside its index) is held exclusively while an entry is
+    saved and shared while one is loaded (where the file system has no ``flock``, numba's
+    unlocked behaviour). A lock around each compilation as
     well, so that a second process would wait and load the first one's code, was tried and
     not kept (``.ci/run`` was not faster with it; cause not investigated)."""
     if _SAFE_CACHE:
@@ -69,17 +70,9 @@ def safe_cache():
             return
         from numba.core import caching
 
-        held: dict = {}  # lock files this process holds, with their depth (re-entrant within a process)
-
         @contextlib.contextmanager
         def locked(path: str, exclusive: bool = True):
-            if path in held:
-                held[path] += 1
-                try:
-                    yield
-                finally:
-                    held[path] -= 1
-                return
+            # (numba's save and load never nest, so the lock need not be re-entrant)
             fd = None
             try:
                 fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o666)  # flock needs no write access
@@ -90,17 +83,11 @@ def safe_cache():
                 if fd is not None:
                     os.close(fd)
                 fd = None
-            if fd is None:
-                yield
-                return
             try:
-                held[path] = 1
-                try:
-                    yield
-                finally:
-                    del held[path]
+                yield
             finally:
-                os.close(fd)  # closing the descriptor releases the lock
+                if fd is not None:
+                    os.close(fd)  # closing the descriptor releases the lock
 
         save, load = caching.IndexDataCacheFile.save, caching.IndexDataCacheFile.load
 

@@ -684,6 +684,12 @@ sys.path.insert(0, sys.argv[1])
 import racemod
 start, dtypes = float(sys.argv[2]), sys.argv[3].split(",")
 racemod.total.compiled()  # numba imported and brdftab's cache locks installed before the start
+from numba.core import caching
+save_index = caching.IndexDataCacheFile._save_index
+def slow_save_index(self, overloads):  # widens numba's race window: unlocked saves all collide
+    time.sleep(0.3)
+    return save_index(self, overloads)
+caching.IndexDataCacheFile._save_index = slow_save_index
 while time.time() < start:  # every process calls at the same moment, its imports done
     time.sleep(0.001)
 sums = [float(np.real(racemod.total(np.arange(5).astype(d)))) for d in dtypes]
@@ -718,10 +724,10 @@ def test_processes_compiling_one_function_at_once_leave_a_consistent_cache(tmp_p
     fresh cache. numba names each signature's data file by the first free number in an index it
     rewrites without a lock: without brdftab's lock files two processes took the same file,
     and a later process loaded one signature's machine code for another's arguments ("can't
-    unbox array") or missed entries. Without the lock files this test failed in at least two of
-    five runs here, and a twelve-signature script in two of three: the race is narrow, so a pass
-    proves less than a failure. Here a later process finds all eight signatures in the cache,
-    and each gives the right sum."""
+    unbox array") or missed entries. Each process here writes numba's index 0.3 s late, which
+    widens that window so the unlocked saves collide every time (the race itself is narrow:
+    without the widening, a run without the lock files failed in two of five). Here a later
+    process finds all eight signatures in the cache, and each gives the right sum."""
     for report in _race(tmp_path, [[d] for d in _DTYPES]):
         assert report["sums"] == [10.0]
     (after,) = _race(tmp_path, [_DTYPES])
