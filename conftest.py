@@ -38,29 +38,54 @@ def pytest_configure(config):
     source, but a process that needs a kernel before another has written it compiles it as
     well: on a fresh checkout each worker and every CLI subprocess of the first minutes compiled
     the table kernel again (26 s per value type). Skipped when the kernels of exactly these
-    sources were compiled before (a stamp under the user's cache folder); a failure is reported
-    and the tests run all the same (they compile what they need)."""
+    sources were compiled before (a stamp under the user's cache folder) and numba's cache still
+    holds the table kernel, and for ``--collect-only``, ``--help``, ``--version``,
+    ``--fixtures`` and ``--markers``. A failure, or a warm-up not done within
+    :data:`WARM_TIMEOUT_S`, is reported and the tests run all the same (they compile what they
+    need)."""
     parts = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
     if str(ROOT) not in parts:
         os.environ["PYTHONPATH"] = os.pathsep.join([str(ROOT), *parts])
+    opt = config.option
     if (hasattr(config, "workerinput") or not (config.getoption("numprocesses", None) or 0)
-            or config.option.collectonly):
+            or opt.collectonly or opt.help or opt.version or opt.showfixtures or opt.markers):
         return
     stamp = _warm_stamp()
-    if stamp.exists():
+    if stamp.exists() and _kernels_on_disk():
         return
+    sys.stderr.write("compiling brdftab's kernels once before the tests (tests/_warm.py; about a minute on a "
+                     "fresh checkout)\n")
     start = time.monotonic()
     with tempfile.TemporaryDirectory(prefix="brdftab-warm-") as folder:
         procs = [subprocess.Popen([sys.executable, str(ROOT / "tests" / "_warm.py"), part, os.path.join(folder, part)],
                                   cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
                  for part in ("f64", "f32", "rgl")]
-        errors = [p.communicate()[1].strip() for p in procs]
+        errors = []
+        for p in procs:
+            try:
+                errors.append(p.communicate(timeout=max(1.0, WARM_TIMEOUT_S - (time.monotonic() - start)))[1].strip())
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.communicate()
+                errors.append(f"not done after {WARM_TIMEOUT_S} s")
     if all(p.returncode == 0 for p in procs):
         stamp.parent.mkdir(parents=True, exist_ok=True)
         stamp.touch()
         sys.stderr.write(f"compiled brdftab's kernels in {time.monotonic() - start:.0f} s (tests/_warm.py)\n")
     else:
         sys.stderr.write(f"compiling brdftab's kernels before the tests failed: {'; '.join(e for e in errors if e)}\n")
+
+
+#: The warm-up's time limit [s]: beyond it the tests start and compile what they need.
+WARM_TIMEOUT_S = 600
+
+
+def _kernels_on_disk() -> bool:
+    """Whether numba's cache holds the table kernel (``_interp_kernels.table_eval``): next to
+    the sources, or under ``NUMBA_CACHE_DIR``. A stamp alone would outlive a deleted cache."""
+    where = os.environ.get("NUMBA_CACHE_DIR")
+    folder = Path(where) if where else ROOT / "brdftab" / "__pycache__"
+    return any(folder.rglob("_interp_kernels.table_eval-*.nbi"))
 
 
 def _warm_stamp() -> Path:

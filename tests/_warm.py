@@ -10,9 +10,11 @@ that need it, in three processes at a time that share as few kernels as they can
 
 Run as ``python tests/_warm.py PART FOLDER`` from the checkout (``python -m brdftab`` imports
 the brdftab of its working folder first). PART is ``f64`` (a float64 table tabulated, with its
-checks, then resampled by ``convert``: the table kernel for float64 values), ``f32`` (a float32
-table evaluated, then validated: the table kernel for float32 values) or ``rgl`` (a model
-tabulated into an RGL ``.bsdf`` file and validated: the RGL writer and reader).
+checks, then resampled by ``convert`` onto a coarse grid, written although it misrepresents the
+table: the table kernel for float64 values), ``f32`` (a float32 table evaluated, then
+validated: the table kernel for float32 values) or ``rgl`` (a model tabulated into an RGL
+``.bsdf`` file and validated: the RGL writer and reader). Every command must exit 0: a failed
+check would be a change in brdftab that the tests report, not a warm-up's business.
 """
 
 from __future__ import annotations
@@ -61,7 +63,7 @@ def commands(part: str, folder: Path) -> list:
         (folder / "warm.toml").write_text(SPEC.format(output="warm.nc"))
         return [cli + ["tabulate", str(folder / "warm.toml"), "--overwrite"],
                 cli + ["convert", str(folder / "warm.nc"), str(folder / "warm-coarse.nc"), "--grid", COARSE,
-                       "--overwrite"]]
+                       "--overwrite", "--allow-invalid"]]  # (the coarse grid misrepresents the table)
     if part == "rgl":
         (folder / "warm.toml").write_text(SPEC.format(output="warm.bsdf"))
         return [cli + ["tabulate", str(folder / "warm.toml"), "--overwrite"],
@@ -75,7 +77,7 @@ def main(part: str, folder: str) -> int:
     folder.mkdir(parents=True, exist_ok=True)
     for args in commands(part, folder):
         proc = subprocess.run(args, capture_output=True, text=True)
-        if proc.returncode not in (0, 1):  # 1: a check failed, the kernels ran all the same
+        if proc.returncode != 0:
             sys.stderr.write(f"{' '.join(args[1:])}: exit {proc.returncode}: {proc.stderr.strip()[-500:]}\n")
             return 1
     return 0

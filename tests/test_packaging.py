@@ -31,8 +31,13 @@ def _files(root: Path) -> set:
 
 
 def _installed(tmp_path) -> Path:
-    """The folder of the brdftab that Python imports outside the checkout, without ``PYTHONPATH``."""
-    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    """The folder of the brdftab that Python imports outside the checkout: ``PYTHONPATH``
+    without the checkout (conftest.py put it first; other entries, e.g. a Spack or Nix
+    environment's, stay)."""
+    env = dict(os.environ)
+    parts = [p for p in env.get("PYTHONPATH", "").split(os.pathsep)
+             if p and Path(p).resolve() != ROOT]
+    env["PYTHONPATH"] = os.pathsep.join(parts)
     proc = subprocess.run([sys.executable, "-c", "import brdftab; print(brdftab.__file__)"], cwd=tmp_path, env=env,
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 0, f"brdftab is not installed: {proc.stderr.strip()[-500:]}"
