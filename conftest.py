@@ -1,7 +1,10 @@
 """pytest settings shared by the tests and the doctests of brdftab/ (both test paths)."""
 
+import contextlib
 import hashlib
+import inspect
 import os
+import signal
 import subprocess
 import sys
 import tempfile
@@ -39,16 +42,17 @@ def pytest_configure(config):
     well: on a fresh checkout each worker and every CLI subprocess of the first minutes compiled
     the table kernel again (26 s per value type). Skipped when the kernels of exactly these
     sources were compiled before (a stamp under the user's cache folder) and numba's cache still
-    holds the table kernel, and for ``--collect-only``, ``--help``, ``--version``,
-    ``--fixtures`` and ``--markers``. A failure, or a warm-up not done within
-    :data:`WARM_TIMEOUT_S`, is reported and the tests run all the same (they compile what they
-    need)."""
+    holds the table kernel, and for runs that execute no test: ``--collect-only``, ``--help``,
+    ``--fixtures``, ``--fixtures-per-test``, ``--markers``, ``--setup-only``, ``--setup-plan``.
+    A failure, or a warm-up not done within :data:`WARM_TIMEOUT_S`, is reported and the tests
+    run all the same (they compile what they need)."""
     parts = [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
     if str(ROOT) not in parts:
         os.environ["PYTHONPATH"] = os.pathsep.join([str(ROOT), *parts])
     opt = config.option
     if (hasattr(config, "workerinput") or not (config.getoption("numprocesses", None) or 0)
-            or opt.collectonly or opt.help or opt.version or opt.showfixtures or opt.markers):
+            or opt.collectonly or opt.help or opt.showfixtures or opt.show_fixtures_per_test or opt.markers
+            or opt.setuponly or opt.setupplan):
         return
     stamp = _warm_stamp()
     if stamp.exists() and _kernels_on_disk():
@@ -56,18 +60,25 @@ def pytest_configure(config):
     sys.stderr.write("compiling brdftab's kernels once before the tests (tests/_warm.py; about a minute on a "
                      "fresh checkout)\n")
     start = time.monotonic()
-    with tempfile.TemporaryDirectory(prefix="brdftab-warm-") as folder:
+    with tempfile.TemporaryDirectory(prefix="brdftab-warm-", ignore_cleanup_errors=True) as folder:
+        # each part in a session of its own: a part past the time limit is killed with the
+        # commands it started
         procs = [subprocess.Popen([sys.executable, str(ROOT / "tests" / "_warm.py"), part, os.path.join(folder, part)],
-                                  cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                                  cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True,
+                                  start_new_session=True)
                  for part in ("f64", "f32", "rgl")]
         errors = []
-        for p in procs:
-            try:
-                errors.append(p.communicate(timeout=max(1.0, WARM_TIMEOUT_S - (time.monotonic() - start)))[1].strip())
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.communicate()
-                errors.append(f"not done after {WARM_TIMEOUT_S} s")
+        try:
+            for p in procs:
+                try:
+                    errors.append(p.communicate(timeout=max(1.0, WARM_TIMEOUT_S - (time.monotonic() - start)))[1]
+                                  .strip())
+                except subprocess.TimeoutExpired:
+                    _kill(p)
+                    errors.append(f"not done after {WARM_TIMEOUT_S} s")
+        finally:  # (Ctrl-C does not reach the parts' sessions)
+            for p in procs:
+                _kill(p)
     if all(p.returncode == 0 for p in procs):
         stamp.parent.mkdir(parents=True, exist_ok=True)
         stamp.touch()
@@ -80,12 +91,35 @@ def pytest_configure(config):
 WARM_TIMEOUT_S = 600
 
 
+def _kill(proc) -> None:
+    """End a warm-up part still running, with the commands it started (its session)."""
+    if proc.poll() is None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+
+
 def _kernels_on_disk() -> bool:
-    """Whether numba's cache holds the table kernel (``_interp_kernels.table_eval``): next to
-    the sources, or under ``NUMBA_CACHE_DIR``. A stamp alone would outlive a deleted cache."""
-    where = os.environ.get("NUMBA_CACHE_DIR")
-    folder = Path(where) if where else ROOT / "brdftab" / "__pycache__"
-    return any(folder.rglob("_interp_kernels.table_eval-*.nbi"))
+    """Whether numba's cache holds the table kernel (``_interp_kernels.table_eval``), in the
+    folder numba itself chooses for it (``NUMBA_CACHE_DIR``, next to the source, or its
+    user-wide fallback where that is not writable: numba's cache locators, asked in numba's
+    order). A stamp alone would outlive a deleted cache. False where it cannot be told (the
+    warm-up then runs: a few seconds when the kernels are on disk)."""
+    try:
+        from numba.core.caching import CacheImpl
+
+        from brdftab._interp_kernels import table_eval
+
+        fn = table_eval.py_func
+        source = inspect.getfile(fn)
+        for locator in CacheImpl._locator_classes:
+            found = locator.from_function(fn, source)
+            if found is not None:
+                pattern = f"*.{fn.__qualname__}-{fn.__code__.co_firstlineno}.py*.nbi"
+                return any(Path(found.get_cache_path()).glob(pattern))
+    except Exception:  # numba's internals moved: warm up
+        pass
+    return False
 
 
 def _warm_stamp() -> Path:
