@@ -27,7 +27,7 @@ import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from .errors import BrdftabError
+from .errors import OUT_OF_MEMORY, BrdftabError
 
 __all__ = ["Engine", "tabulate_unit", "validate_unit", "tabulate_many", "counted", "ordered", "unit_bar",
            "MISSING_DASK"]
@@ -55,7 +55,7 @@ def _caught(fn):
         where = f"{exc.filename}: " if getattr(exc, "filename", None) else ""
         return None, (f"{where}{exc.strerror or exc}", 2, None)
     except MemoryError:
-        return None, ("out of memory; use a coarser grid or fewer channels", 2, None)
+        return None, (OUT_OF_MEMORY, 2, None)
     except RecursionError:
         return None, ("input nested too deeply to process", 2, None)
     except (KeyboardInterrupt, SystemExit):

@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
+import math
 import os
 import signal
 import sys
@@ -32,7 +33,7 @@ from ._version import __version__
 from .cli_fit import fit
 from .cli_plot import plot
 from .cli_validate import check_options, cli_layer, engine_options, origin_option, validate
-from .errors import BrdftabError, printable as _printable, shown
+from .errors import OUT_OF_MEMORY, BrdftabError, printable as _printable, shown
 
 DEBUG_KEY = "brdftab.debug"
 
@@ -196,7 +197,7 @@ class _Group(click.Group):
         except MemoryError:
             if debug():
                 raise
-            _error("out of memory; use a coarser grid or fewer channels")
+            _error(OUT_OF_MEMORY)
             ctx.exit(2)
         except RecursionError:
             if debug():
@@ -417,7 +418,7 @@ def _direction(text, option):
     theta, phi = parts
     if not 0.0 <= theta <= 90.0:  # the digits as written: 90.0000001 is not "90"
         raise BrdftabError(f"{option}: theta must lie in [0, 90] degrees, got {written[0]}")
-    return theta, phi
+    return theta, math.fmod(phi, 360.0)  # exact: 1e20° is 280°, which radians(1e20) would lose
 
 
 def _content_format(path: Path):

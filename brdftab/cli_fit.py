@@ -14,6 +14,7 @@ import click
 
 from .cli_validate import engine_options
 from .errors import BrdftabError
+from .fitting import MAX_STARTS
 
 __all__ = ["fit"]
 
@@ -59,7 +60,7 @@ def _bounds(values):
               help="Bounds of a free key instead of its declared range; repeatable.")
 @click.option("--metric", type=click.Choice(METRICS), default="log", show_default=True,
               help="log: log of f (every order of magnitude alike); cos: |f - t| cos(theta_i) cos(theta_o).")
-@click.option("--starts", type=click.IntRange(min=1), default=16, show_default=True,
+@click.option("--starts", type=click.IntRange(min=1, max=MAX_STARTS), default=16, show_default=True,
               help="Starts of the search: the start value and points spread over the bounds.")
 @click.option("--max-theta-deg", type=click.FloatRange(min=0, max=90, min_open=True), default=80.0,
               show_default=True, help="Leave out samples with theta_i or theta_o beyond this (near grazing).")

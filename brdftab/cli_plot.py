@@ -34,6 +34,38 @@ def _angles(text, option):
     return values
 
 
+def _azimuth(value, option):
+    """An azimuth in degrees, reduced exactly into (-360, 360) (1e20° is 280°, which a
+    conversion to radians would lose); not finite: one line."""
+    if value is None:
+        return None
+    if not math.isfinite(value):
+        raise BrdftabError(f"{option} expects a finite angle in degrees, got {value!r}")
+    return math.fmod(value, 360.0)
+
+
+def _title(text):
+    """``--title`` as matplotlib will draw it: math text (between $ signs) that matplotlib
+    cannot typeset is one line now, not an error while the figure is saved."""
+    if not text:
+        return text
+    from matplotlib.mathtext import MathTextParser
+    from matplotlib.text import Text
+
+    try:
+        body, is_math = Text()._preprocess_math(text)
+    except AttributeError:  # (matplotlib's internals moved: it judges the title when drawing)
+        return text
+    if is_math is True:
+        try:
+            MathTextParser("path").parse(body)
+        except ValueError as exc:
+            why = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+            raise BrdftabError(f"--title: matplotlib cannot typeset '{text}' as math text ({why}); write \\$ "
+                               "for a dollar sign") from None
+    return text
+
+
 def read_points(path: Path) -> list:
     """Rows ``theta_i_deg, theta_o_deg, value`` of a CSV file (a header line and ``#``
     comments allowed); a malformed line is one error naming the file and the line."""
@@ -131,7 +163,8 @@ def plot(source, out, kind, theta_i, phi_i, phi_d, quantity, log, against, ratio
             raise click.UsageError(f"{option} does not apply to --kind {kind}")
     if kind == "compare" and against is None:
         raise click.UsageError("--kind compare needs --against FILE|SPEC")
-    options = {"wavelengths": list(wavelengths) or None, "rgb": rgb, "channel": channel, "title": title}
+    options = {"wavelengths": list(wavelengths) or None, "rgb": rgb, "channel": channel, "title": _title(title)}
+    phi_i, phi_d = _azimuth(phi_i, "--phi-i-deg"), _azimuth(phi_d, "--phi-d-deg")
     if theta_i is not None:
         options["theta_i_deg"] = _angles(theta_i, "--theta-i-deg")
     if phi_i is not None:

@@ -9,6 +9,11 @@ from __future__ import annotations
 
 import os
 
+#: What a run that ran out of memory says (one line, exit code 2).
+OUT_OF_MEMORY = ("out of memory: the run needs more than this machine has (a coarser grid, fewer channels, "
+                 "sweep members or fit starts need less)")
+
+
 class BrdftabError(Exception):
     """Bad input: a user-facing message, one line, no traceback needed."""
 

@@ -74,7 +74,7 @@ if sys.version_info >= (3, 11):
 else:  # pragma: no cover - Python 3.10
     import tomli as tomllib
 
-__all__ = ["fit", "FitResult", "model_table", "grid_table", "METRICS", "MAX_THETA_DEG"]
+__all__ = ["fit", "FitResult", "model_table", "grid_table", "METRICS", "MAX_THETA_DEG", "MAX_STARTS"]
 
 METRICS = ("log", "cos")
 #: The losses of :func:`scipy.optimize.least_squares`; ``soft_l1`` is the default (see Search).
@@ -84,6 +84,9 @@ MAX_THETA_DEG = 80.0
 #: The log metric's floor relative to the median of the positive samples.
 LOG_FLOOR = 1e-3
 DEFAULT_STARTS = 16
+#: The most starts a fit takes: each is a search of its own, and their points are drawn at
+#: once (10^8 starts ran out of memory at 7 GB; 3 million ran for minutes).
+MAX_STARTS = 10_000
 SEARCH_SAMPLES = 20_000
 REFINE_SAMPLES = 200_000
 #: Tolerance (ftol, xtol, gtol) of the search from each start; the refine uses 1e-8.
@@ -670,8 +673,8 @@ def fit(table, model, free, *, params: dict | None = None, metric: str = "log", 
         free = [k for k in free.split(",") if k]
     if not free:
         raise BrdftabError("--free: name at least one parameter to fit")
-    if not isinstance(starts, int) or starts < 1:
-        raise BrdftabError(f"starts: expected a whole number >= 1, got {starts!r}")
+    if isinstance(starts, bool) or not isinstance(starts, int) or not 1 <= starts <= MAX_STARTS:
+        raise BrdftabError(f"starts: expected a whole number in [1, {MAX_STARTS}], got {starts!r}")
     if not 0 < max_theta_deg <= 90:
         raise BrdftabError(f"max_theta_deg: expected a number > 0 and <= 90, got {max_theta_deg!r}")
     start_table, folder = _start_model(model, params, "--param")

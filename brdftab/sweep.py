@@ -35,9 +35,12 @@ from pathlib import Path
 from .errors import BrdftabError, SpecError
 from .params import suggest, toml_value
 
-__all__ = ["Sweep", "Member", "load", "member_spec", "count", "name_value", "parse_key", "MODES"]
+__all__ = ["Sweep", "Member", "load", "member_spec", "count", "name_value", "parse_key", "MODES", "MAX_MEMBERS"]
 
 MODES = ("product", "zip")
+#: The most members a sweep may describe: each is a table of its own, and the members are
+#: listed before the first is made (25 million took 7.6 GB before it ran out of memory).
+MAX_MEMBERS = 100_000
 #: Keys of ``[sweep]`` that are settings, not swept keys.
 SETTINGS = ("mode", "summary")
 _PLACEHOLDER = re.compile(r"\{([^{}]*)\}")
@@ -206,6 +209,9 @@ def _settings(raw, path):
         if len(lengths) > 1:
             sizes = ", ".join(f"{k} has {len(v)}" for k, _, v in keys)
             raise _fail(path, "sweep", f'mode = "zip" takes lists of equal length: {sizes} values')
+    members = len(keys[0][2]) if mode == "zip" else math.prod(len(v) for _, _, v in keys)
+    if members > MAX_MEMBERS:
+        raise _fail(path, "sweep", f"{members} members; at most {MAX_MEMBERS} (split the sweep into several specs)")
     return keys, mode, summary
 
 

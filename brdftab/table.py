@@ -1740,6 +1740,8 @@ def parse_size(text, what: str = "memory") -> int:
     if m is None or unit not in _SIZE_UNITS:
         raise ParameterError(what, f"expected a size such as 512M, 2G or 1.5GB, got {str(text)!r}")
     size = float(m.group(1)) * _SIZE_UNITS[unit]
+    if not math.isfinite(size):
+        raise ParameterError(what, f"{str(text)!r} is too large a size")
     if not (size >= 1 << 20):
         raise ParameterError(what, f"{str(text)!r} is less than 1 MiB; a run needs more than that")
     return int(size)

@@ -172,6 +172,8 @@ def table_file(tmp_path_factory):
      ["the model gives 3 channels", "the table has 1"]),
     (["--free", "alpha", "--param", "alpha=abc"], ["alpha", "not a number"]),
     (["--free", "alpha", "--model", "microfacett"], ["did you mean 'microfacet'"]),
+    # 10^8 starts ran out of memory at 7 GB: a limit, said before any work
+    (["--free", "alpha", "--starts", "10001"], ["--starts", "10001 is not in the range 1<=x<=10000"]),
 ])
 def test_bad_input_is_one_line(table_file, tmp_path, args, expected):
     argv = ["fit", table_file, "--model", "microfacet", "--param", "alpha=0.3", "-o", tmp_path / "fit.toml", *args]
@@ -193,6 +195,27 @@ def test_a_table_without_valid_samples_is_one_line(tmp_path):
     with pytest.raises(BrdftabError, match="no valid samples"):
         brdftab.fit(tabulate(models.create("lambert"), grid_from_config(GRID)), "lambert", free=["albedo"],
                     max_theta_deg=0.01)
+
+
+def test_running_out_of_memory_is_one_line_that_fits_the_verb(table_file, tmp_path, monkeypatch):
+    # (it said "use a coarser grid or fewer channels" for a fit or a sweep too)
+    from brdftab import fitting
+
+    def exhausted(*args, **kwargs):
+        raise MemoryError
+
+    monkeypatch.setattr(fitting, "fit", exhausted)
+    r = cli("fit", table_file, "--model", "microfacet", "--free", "alpha", "-o", tmp_path / "fit.toml")
+    one_error(r.stderr if hasattr(r, "stderr") else r.output, r.exit_code,
+              "out of memory: the run needs more than this machine has (a coarser grid, fewer channels, sweep "
+              "members or fit starts need less)")
+    assert not (tmp_path / "fit.toml").exists()
+
+
+@pytest.mark.parametrize("starts", [0, 10_001, True, 2.0])
+def test_the_number_of_starts_is_checked_in_the_api_too(table_file, starts):
+    with pytest.raises(BrdftabError, match=r"starts: expected a whole number in \[1, 10000\]"):
+        brdftab.fit(brdftab.open(table_file), "microfacet", free=["alpha"], params={"alpha": 0.3}, starts=starts)
 
 
 def test_help_lists_the_metrics_of_the_fitting_module():

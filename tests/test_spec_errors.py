@@ -343,6 +343,48 @@ def test_eval_bad_wo_direction_names_wo():
     _assert_one_error_line(result.stderr, result.exit_code, "--wo-deg", "[0, 90]")
 
 
+def test_eval_reduces_a_huge_azimuth_exactly():
+    # 1e20 is a whole number of degrees, 280 beyond a whole number of turns; converted to
+    # radians first, it gave another direction's value (R 0.0536 instead of 0.1670)
+    assert 10 ** 20 % 360 == 280
+    huge, same, other = (_cli(["eval", GGX_GOLD, "--wi-deg", f"30,{phi}", "--wo-deg", "30,180"])
+                         for phi in ("1e20", "280", "0"))
+    assert huge.exit_code == same.exit_code == other.exit_code == 0
+    assert huge.stdout == same.stdout != other.stdout
+
+
+@pytest.mark.parametrize("args, expected", [
+    (["--phi-i-deg", "inf"], ["--phi-i-deg expects a finite angle in degrees, got inf"]),
+    (["--kind", "slice", "--phi-d-deg", "nan"], ["--phi-d-deg expects a finite angle in degrees, got nan"]),
+    # math text matplotlib cannot typeset: one line before the figure is drawn, not an internal error
+    (["--title", "$\\undefinedmacro$"], ["--title: matplotlib cannot typeset '$\\undefinedmacro$' as math text",
+                                           "write \\$ for a dollar sign"]),
+    (["--title", "$^^$"], ["--title: matplotlib cannot typeset"]),
+])
+def test_plot_bad_argument_is_one_line_and_writes_nothing(tmp_path, args, expected):
+    out = tmp_path / "p.png"
+    result = _cli(["plot", GGX_GOLD, "-o", out, *args])
+    _assert_one_error_line(result.stderr, result.exit_code, *expected)
+    assert not out.exists()
+
+
+def test_plot_title_with_plain_dollar_signs_is_drawn(tmp_path):
+    out = tmp_path / "p.png"
+    result = _cli(["plot", GGX_GOLD, "-o", out, "--title", "costs $5 or $6"])  # an odd pair: not math text
+    assert result.exit_code == 0, result.stderr
+    assert out.stat().st_size > 0
+
+
+@pytest.mark.parametrize("size", ["1e400", "1e400G", "1e300T"])
+def test_a_memory_budget_beyond_any_number_is_one_line(size, monkeypatch):
+    monkeypatch.delenv("BRDFTAB_MEMORY", raising=False)  # (--memory sets it for the run)
+    result = _cli(["validate", GGX_GOLD, "--memory", size])
+    _assert_one_error_line(result.stderr, result.exit_code, f"--memory: '{size}' is too large a size")
+    monkeypatch.setenv("BRDFTAB_MEMORY", size)
+    proc = _subprocess(["validate", GGX_GOLD])
+    _assert_one_error_line(proc.stderr, proc.returncode, f"BRDFTAB_MEMORY: '{size}' is too large a size")
+
+
 @pytest.mark.parametrize("value", ["a,b", "100,0"])
 def test_eval_bad_direction_subprocess(value):
     proc = _subprocess(["eval", GGX_GOLD, "--wi-deg", value, "--wo-deg", "30,180"])

@@ -144,6 +144,10 @@ def test_a_misspelt_swept_key_is_the_spec_s_own_error(tmp_path):
     ('"model.alpha" = [0.1, 0.2]\nmdoe = "zip"', "g-{model.alpha}.nc",
      "sweep.mdoe: unknown key (did you mean 'mode'?)"),
     ('"model.alpha" = 0.1', "g.nc", "sweep.model.alpha: expected a non-empty list of values"),
+    # more members than a sweep may have (25 million ran out of memory at 7.6 GB while they were listed)
+    (f'"model.alpha" = [{", ".join(str(0.1 + k * 1e-4) for k in range(400))}]\n'
+     f'"model.n" = [{", ".join(str(1.3 + k * 1e-4) for k in range(400))}]', "g-{model.alpha}-{model.n}.nc",
+     "sweep: 160000 members; at most 100000 (split the sweep into several specs)"),
 ])
 def test_a_sweep_that_cannot_run_is_one_line_before_any_work(tmp_path, sweep, path, expected):
     spec = tmp_path / "s.toml"
