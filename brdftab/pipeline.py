@@ -395,6 +395,12 @@ def _group_channels(spec: Spec, members, n: int) -> int:
     return n
 
 
+#: The most samples (nodes x channels) a table may have: beyond 2^53 a count is no longer exact
+#: in float64, and numpy cannot index such an array (a grid of 10^6 nodes on each of four axes
+#: was an internal error, "iterator is too large").
+MAX_SAMPLES = 2 ** 53
+
+
 def _in_memory_bytes(grid, n: int) -> float:
     """Peak memory of tabulating ``grid`` x ``n`` channels in memory and checking it (the
     figure by which a table read from disk is over the budget too, :attr:`Table.over_budget`)."""
@@ -418,6 +424,11 @@ def _check_memory(spec: Spec, planned) -> None:
     n = _n_channels(spec)
     budget = memory_budget()
     for grid, members in _groups(planned):
+        if grid is not None and grid.size * _group_channels(spec, members, n) > MAX_SAMPLES:
+            raise BrdftabError(
+                f"{spec.path.name}: {grid.describe()} x {_group_channels(spec, members, n)} channels is "
+                f"{float(grid.size) * _group_channels(spec, members, n):.3g} samples, more than a table can hold "
+                f"(2^53 = {float(MAX_SAMPLES):.3g}); use a coarser grid")
         if grid is None or _streams(spec, grid, members):  # (a format sampling the model itself on a
             continue                                       # grid it names, like MERL's, holds it whole)
         need = _in_memory_bytes(grid, _group_channels(spec, members, n))

@@ -69,6 +69,10 @@ CASES = {
     "unknown-output-format": (_spec_text(output='[[output]]\npath = "out.nc"\nformat = "netcdff"\n'),
                               ["output[0].format: unknown format 'netcdff' (did you mean 'netcdf'?); valid: netcdf, "
                                "zarr, merl, pbsdf, rgl, exr, zemax, lighttools"]),
+    # a grid no table can hold (10^24 samples): one line before any work, not "iterator is too large"
+    "grid-beyond-any-table": (_spec_text(grid=_rusi("anisotropic = true\nn_theta_h = 1000000\nn_theta_d = 1000000\n"
+                                                    "n_phi_d = 1000000\nn_phi_h = 1000000\n")),
+                              ["x 1 channels is 1e+24 samples, more than a table can hold (2^53 = 9.01e+15)"]),
     "unknown-grid-type-wording": (_spec_text(grid='[grid]\ntype = "rusinkiewiz"\n'),
                                   ["grid.type: unknown grid type 'rusinkiewiz' (did you mean 'rusinkiewicz'?); valid: "]),
     # channel layouts that do not combine: the error names the parameter or term, not "terms"
