@@ -67,6 +67,8 @@ def main():
         from .cli import main as cli_main, preload
 
         preload(sys.argv[1:])  # the verb's modules (xarray, netCDF4, the models) load under these handlers
+        if _interrupted:  # an import swallowed the KeyboardInterrupt (a bare except in a library)
+            raise KeyboardInterrupt
     except KeyboardInterrupt:
         _stop_starting()
     except ImportError:

@@ -224,6 +224,31 @@ def test_a_signal_during_start_up_ends_quietly(tmp_path, sig, code):
         assert "Traceback" not in err and len(err.strip().splitlines()) <= 1, err
 
 
+def test_an_interrupt_a_library_swallows_during_start_up_still_ends_the_run():
+    """A Ctrl-C while the verb's modules load raises KeyboardInterrupt inside some import; a
+    library's bare ``except:`` there can swallow it, and the run then went on to the end with
+    exit code 0 (seen once in CI: a Ctrl-C at a terminal 0.3 s after the start, under load)."""
+    script = textwrap.dedent("""
+        import os, signal, sys
+        import brdftab.cli
+        from brdftab import _entry
+
+        def preload(argv):  # an import whose library swallows the interrupt
+            try:
+                os.kill(os.getpid(), signal.SIGINT)
+            except BaseException:
+                pass
+
+        brdftab.cli.preload = preload
+        sys.argv = ["brdftab", "models"]
+        _entry.main()
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 130, (proc.returncode, proc.stderr)
+    assert proc.stderr.splitlines() == ["brdftab: interrupted while starting; no output written"]
+    assert proc.stdout == ""
+
+
 # --------------------------------------------------------------------------------------------
 # A signal during a write: the temporary is removed; a writer that reports its steps stops at
 # the next step, one that does not finishes the write first
