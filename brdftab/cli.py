@@ -418,7 +418,7 @@ def _direction(text, option):
     theta, phi = parts
     if not 0.0 <= theta <= 90.0:  # the digits as written: 90.0000001 is not "90"
         raise BrdftabError(f"{option}: theta must lie in [0, 90] degrees, got {written[0]}")
-    return theta, math.fmod(phi, 360.0)  # exact: 1e20° is 280°, which radians(1e20) would lose
+    return theta, math.fmod(phi, 360.0) + 0.0  # exact: 1e20° is 280°, which radians(1e20) would lose (+ 0.0: no -0)
 
 
 def _content_format(path: Path):

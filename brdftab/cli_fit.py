@@ -14,12 +14,13 @@ import click
 
 from .cli_validate import engine_options
 from .errors import BrdftabError
-from .fitting import MAX_STARTS
 
 __all__ = ["fit"]
 
 #: Static copy of :data:`brdftab.fitting.METRICS` (``--help`` does not import scipy); a test holds them equal.
 METRICS = ("log", "cos")
+#: Static copy of :data:`brdftab.fitting.MAX_STARTS`; the same test holds them equal.
+MAX_STARTS = 10_000
 
 
 def _pairs(values, option):

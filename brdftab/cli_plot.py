@@ -41,7 +41,7 @@ def _azimuth(value, option):
         return None
     if not math.isfinite(value):
         raise BrdftabError(f"{option} expects a finite angle in degrees, got {value!r}")
-    return math.fmod(value, 360.0)
+    return math.fmod(value, 360.0) + 0.0  # (no -0)
 
 
 def _title(text):

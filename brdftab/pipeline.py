@@ -396,8 +396,8 @@ def _group_channels(spec: Spec, members, n: int) -> int:
 
 
 #: The most samples (nodes x channels) a table may have: beyond 2^53 a count is no longer exact
-#: in float64, and numpy cannot index such an array (a grid of 10^6 nodes on each of four axes
-#: was an internal error, "iterator is too large").
+#: in float64 (and 2^53 float64 samples are 64 PiB). A grid of 10^6 nodes on each of four axes,
+#: 10^24 samples (beyond numpy's 2^63), was an internal error, "iterator is too large".
 MAX_SAMPLES = 2 ** 53
 
 
@@ -420,13 +420,13 @@ def _streams(spec: Spec, grid, members) -> bool:
 def _check_memory(spec: Spec, planned) -> None:
     """Refuse up front a run whose tables and checks would not fit in memory (not after the
     tabulation, when the checks run out of it); outputs streamed to their files are bounded by
-    the memory budget instead, whatever their size."""
+    the memory budget instead, whatever their size up to :data:`MAX_SAMPLES`."""
     n = _n_channels(spec)
     budget = memory_budget()
     for grid, members in _groups(planned):
         if grid is not None and grid.size * _group_channels(spec, members, n) > MAX_SAMPLES:
             raise BrdftabError(
-                f"{spec.path.name}: {grid.describe()} x {_group_channels(spec, members, n)} channels is "
+                f"{spec.path.name}: {grid.describe()} x {_group_channels(spec, members, n)} channel(s) is "
                 f"{float(grid.size) * _group_channels(spec, members, n):.3g} samples, more than a table can hold "
                 f"(2^53 = {float(MAX_SAMPLES):.3g}); use a coarser grid")
         if grid is None or _streams(spec, grid, members):  # (a format sampling the model itself on a

@@ -222,6 +222,7 @@ def test_help_lists_the_metrics_of_the_fitting_module():
     from brdftab import cli_fit, fitting
 
     assert cli_fit.METRICS == fitting.METRICS
+    assert cli_fit.MAX_STARTS == fitting.MAX_STARTS
 
 
 def test_a_measured_rgl_file_lambert_plus_ggx_beats_lambert_and_its_spec_tabulates(tmp_path):

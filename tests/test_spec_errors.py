@@ -72,7 +72,7 @@ CASES = {
     # a grid no table can hold (10^24 samples): one line before any work, not "iterator is too large"
     "grid-beyond-any-table": (_spec_text(grid=_rusi("anisotropic = true\nn_theta_h = 1000000\nn_theta_d = 1000000\n"
                                                     "n_phi_d = 1000000\nn_phi_h = 1000000\n")),
-                              ["x 1 channels is 1e+24 samples, more than a table can hold (2^53 = 9.01e+15)"]),
+                              ["x 1 channel(s) is 1e+24 samples, more than a table can hold (2^53 = 9.01e+15)"]),
     "unknown-grid-type-wording": (_spec_text(grid='[grid]\ntype = "rusinkiewiz"\n'),
                                   ["grid.type: unknown grid type 'rusinkiewiz' (did you mean 'rusinkiewicz'?); valid: "]),
     # channel layouts that do not combine: the error names the parameter or term, not "terms"
@@ -372,9 +372,11 @@ def test_plot_bad_argument_is_one_line_and_writes_nothing(tmp_path, args, expect
     assert not out.exists()
 
 
-def test_plot_title_with_plain_dollar_signs_is_drawn(tmp_path):
+@pytest.mark.parametrize("title", ["costs $5", "costs \\$5 or \\$6", "the slope $\\alpha$"])
+def test_plot_titles_that_matplotlib_draws_are_drawn(tmp_path, title):
+    # one $ (not math text), escaped ones, and math text matplotlib typesets
     out = tmp_path / "p.png"
-    result = _cli(["plot", GGX_GOLD, "-o", out, "--title", "costs $5 or $6"])  # an odd pair: not math text
+    result = _cli(["plot", GGX_GOLD, "-o", out, "--title", title])
     assert result.exit_code == 0, result.stderr
     assert out.stat().st_size > 0
 
