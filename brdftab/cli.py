@@ -18,7 +18,6 @@ from __future__ import annotations
 import contextlib
 import importlib
 import json
-import math
 import os
 import signal
 import sys
@@ -418,7 +417,9 @@ def _direction(text, option):
     theta, phi = parts
     if not 0.0 <= theta <= 90.0:  # the digits as written: 90.0000001 is not "90"
         raise BrdftabError(f"{option}: theta must lie in [0, 90] degrees, got {written[0]}")
-    return theta, math.fmod(phi, 360.0) + 0.0  # exact: 1e20° is 280°, which radians(1e20) would lose (+ 0.0: no -0)
+    from .geometry import reduce_azimuth_deg
+
+    return theta, reduce_azimuth_deg(phi)
 
 
 def _content_format(path: Path):

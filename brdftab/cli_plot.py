@@ -35,13 +35,15 @@ def _angles(text, option):
 
 
 def _azimuth(value, option):
-    """An azimuth in degrees, reduced exactly into (-360, 360) (1e20° is 280°, which a
-    conversion to radians would lose); not finite: one line."""
+    """An azimuth in degrees, reduced exactly (:func:`brdftab.geometry.reduce_azimuth_deg`);
+    not finite: one line."""
     if value is None:
         return None
     if not math.isfinite(value):
         raise BrdftabError(f"{option} expects a finite angle in degrees, got {value!r}")
-    return math.fmod(value, 360.0) + 0.0  # (no -0)
+    from .geometry import reduce_azimuth_deg
+
+    return reduce_azimuth_deg(value)
 
 
 def _title(text):

@@ -31,6 +31,7 @@ from ._jit import device
 
 __all__ = [
     "THETA_H_ZERO",
+    "reduce_azimuth_deg",
     "sph_to_vec",
     "vec_to_sph",
     "normalize",
@@ -48,6 +49,16 @@ __all__ = [
 
 #: Below this value of sin θh the half vector is taken to be the normal and φh := 0.
 THETA_H_ZERO = 1e-12
+
+
+def reduce_azimuth_deg(phi: float) -> float:
+    """An azimuth in degrees reduced exactly into (−360, 360), never −0 (the command line's
+    angles, before they become radians: 1e20° is 280°, which ``radians(1e20)`` loses).
+
+    >>> reduce_azimuth_deg(1e20), reduce_azimuth_deg(-360.0), reduce_azimuth_deg(-30.0)
+    (280.0, 0.0, -30.0)
+    """
+    return math.fmod(phi, 360.0) + 0.0
 
 
 def sph_to_vec(theta, phi):

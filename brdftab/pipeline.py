@@ -424,14 +424,14 @@ def _check_memory(spec: Spec, planned) -> None:
     n = _n_channels(spec)
     budget = memory_budget()
     for grid, members in _groups(planned):
-        if grid is not None and grid.size * _group_channels(spec, members, n) > MAX_SAMPLES:
+        channels = _group_channels(spec, members, n)
+        if grid is not None and grid.size * channels > MAX_SAMPLES:
             raise BrdftabError(
-                f"{spec.path.name}: {grid.describe()} x {_group_channels(spec, members, n)} channel(s) is "
-                f"{float(grid.size) * _group_channels(spec, members, n):.3g} samples, more than a table can hold "
-                f"(2^53 = {float(MAX_SAMPLES):.3g}); use a coarser grid")
+                f"{spec.path.name}: {grid.describe()} x {channels} channel(s) is {float(grid.size) * channels:.3g} "
+                f"samples, more than a table can hold (2^53 = {float(MAX_SAMPLES):.3g}); use a coarser grid")
         if grid is None or _streams(spec, grid, members):  # (a format sampling the model itself on a
             continue                                       # grid it names, like MERL's, holds it whole)
-        need = _in_memory_bytes(grid, _group_channels(spec, members, n))
+        need = _in_memory_bytes(grid, channels)
         if need > budget and (getattr(spec, "polarized", False) or any(m.format.polarized for m in members)):
             raise BrdftabError(
                 f"{spec.path.name}: tabulating and checking the polarized table {grid.describe()} (brdf and 16 Mueller "

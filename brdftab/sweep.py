@@ -209,7 +209,7 @@ def _settings(raw, path):
         if len(lengths) > 1:
             sizes = ", ".join(f"{k} has {len(v)}" for k, _, v in keys)
             raise _fail(path, "sweep", f'mode = "zip" takes lists of equal length: {sizes} values')
-    members = len(keys[0][2]) if mode == "zip" else math.prod(len(v) for _, _, v in keys)
+    members = _count(keys, mode)
     if members > MAX_MEMBERS:
         raise _fail(path, "sweep", f"{members} members; at most {MAX_MEMBERS} (split the sweep into several specs)")
     return keys, mode, summary
@@ -218,6 +218,10 @@ def _settings(raw, path):
 def count(raw: dict, path) -> int:
     """How many members the ``[sweep]`` of ``raw`` describes."""
     keys, mode, _ = _settings(raw, path)
+    return _count(keys, mode)
+
+
+def _count(keys, mode) -> int:
     return len(keys[0][2]) if mode == "zip" else math.prod(len(v) for _, _, v in keys)
 
 
